@@ -1,0 +1,1 @@
+import axialmix  # noqa: F401  (float64 for every test)
