@@ -1,0 +1,37 @@
+"""Exact results of the axial dispersion model (MODELS.md section 2) and its relatives.
+
+Everything here is JAX, float64, and differentiable in the parameters (``tau``, ``peclet``,
+``n_tanks``); times are 1-D arrays in any unit with ``tau`` in the same unit, and densities
+are returned in 1/(time unit).
+
+* closed–closed (Danckwerts): :func:`exit_age_closed`, :func:`step_response_closed`,
+  :func:`transfer_function_closed`, :func:`mean_closed`, :func:`variance_closed`,
+  :func:`variance_ratio_closed`;
+* open–open: :func:`exit_age_open`, :func:`step_response_open`, :func:`mean_open`,
+  :func:`variance_open`;
+* tanks in series (real-valued number of tanks): :func:`exit_age_tanks`,
+  :func:`step_response_tanks`, :func:`mean_tanks`, :func:`variance_tanks`;
+* inverse relations: :func:`peclet_from_moments`, :func:`sherritt_dispersion`,
+  :func:`sherritt_peclet`, :func:`peclet_from_physical`, :func:`tau_from_physical`.
+
+:mod:`axialmix.analytic.highprecision` holds the slow mpmath series used as the reference
+in tests and benchmarks.
+"""
+
+from axialmix.analytic.closed import (
+    exit_age_closed,
+    mean_closed,
+    step_response_closed,
+    transfer_function_closed,
+    variance_closed,
+    variance_ratio_closed,
+)
+
+__all__ = [
+    "exit_age_closed",
+    "mean_closed",
+    "step_response_closed",
+    "transfer_function_closed",
+    "variance_closed",
+    "variance_ratio_closed",
+]

@@ -1,0 +1,93 @@
+"""Bromwich inversion of the closed–closed transfer function on a vertical line in q.
+
+With time in units of tau, ``q = sqrt(1 + 4 s / Pe)`` and ``s = Pe (q² - 1) / 4``, the
+exponent of the Bromwich integrand ``s theta + Pe (1 - q) / 2`` is the quadratic
+``phi(q) = (Pe theta / 4) (q - 1/theta)² - Pe (1 - theta)² / (4 theta)`` with its saddle at
+``q = 1/theta``. The transfer function (MODELS.md section 2) is even in q and its poles lie on
+the imaginary q axis, so the Bromwich line can be any vertical line ``Re q = a > 0``. On
+``q = 1/theta + delta + i y`` the integrand is a Gaussian in y times a factor that is analytic
+in a strip of half-width ``a``: the trapezoidal rule converges exponentially. Scaling y by
+``sqrt(Pe theta) / 2`` makes the rule the same for every Pe and theta, so one fixed number of
+nodes serves all of them:
+
+* ``delta = sqrt(4 L / (Pe theta))`` (the line sits ``sqrt(L)`` scaled units right of the
+  saddle; it costs a factor ``e^L`` of round-off and keeps the line at least ``sqrt(L)``
+  scaled units from every pole),
+* the integral is truncated at ``y = sqrt(4 T / (Pe theta))``, where the Gaussian is
+  ``e^-T``.
+
+With ``T = 40`` and 48 nodes the step is 0.13 scaled units; the discretisation error
+``~exp(-2 pi sqrt(L) / step)`` is far below round-off.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax.scipy.special import erfc
+
+OFFSET_EXPONENT = 2.3
+TRUNCATION_EXPONENT = 40.0
+DEFAULT_NODES = 48
+# Below this exponent, exp(-Pe (1-theta)² / (4 theta)) and E, F underflow in double precision.
+_UNDERFLOW_EXPONENT = 1000.0
+
+
+def exprel(z: jax.Array) -> jax.Array:
+    """Return (e^z - 1) / z, equal to 1 at z = 0, for complex z."""
+    nonzero = z != 0
+    z_safe = jnp.where(nonzero, z, 1.0)
+    return jnp.where(nonzero, jnp.expm1(z_safe) / z_safe, 1.0)
+
+
+def _earliest_nonzero_theta(peclet: jax.Array) -> jax.Array:
+    """Return theta below which Pe (1 - theta)² / (4 theta) exceeds the underflow exponent."""
+    k = 4.0 * _UNDERFLOW_EXPONENT
+    return 2.0 * peclet / ((2.0 * peclet + k) + jnp.sqrt(k * (4.0 * peclet + k)))
+
+
+def _line_integrals(theta: jax.Array, peclet: jax.Array, nodes: int):
+    """Return E(theta) and F(theta) for theta above the underflow limit (elementwise)."""
+    theta = theta[..., None]
+    peclet = jnp.asarray(peclet)[..., None]
+    pe_theta = peclet * theta
+    # The line geometry is held fixed under differentiation: the integral is the same on every
+    # admissible line, so derivatives are the (equally convergent) integrals of derivatives.
+    offset = jax.lax.stop_gradient(jnp.sqrt(4.0 * OFFSET_EXPONENT / pe_theta))
+    height = jax.lax.stop_gradient(jnp.sqrt(4.0 * TRUNCATION_EXPONENT / pe_theta))
+    step = height / nodes
+    saddle = 1.0 / theta
+    line = jax.lax.stop_gradient(saddle + offset)
+    y = jnp.arange(nodes + 1) * step
+    from_saddle = (line - saddle) + 1j * y
+    q = line + 1j * y
+    phi = 0.25 * pe_theta * from_saddle**2 - peclet * (1.0 - theta) ** 2 / (4.0 * theta)
+    growth = jnp.exp(phi)
+    # Overflow-safe denominator: (1+q)² - (1-q)² e^{-q Pe} = q (4 + Pe (1-q)² exprel(-q Pe)).
+    relative_growth = exprel(-q * peclet)
+    denominator = 4.0 + peclet * (1.0 - q) ** 2 * relative_growth
+    weights = jnp.ones(nodes + 1).at[0].set(0.5)
+    exit_age_integrand = growth * 2.0 * peclet * q / denominator
+    # F: the pole of G/s at q = 1 is removed by subtracting e^phi / (q - 1), whose line integral
+    # is erfc(sqrt(Pe/theta) (1 - theta) / 2) / 2; what remains is analytic there.
+    step_integrand = (
+        growth * (4.0 + (1.0 - q**2) * peclet * relative_growth) / ((1.0 + q) * denominator)
+    )
+    scale = step[..., 0] / jnp.pi
+    exit_age = scale * jnp.sum(weights * exit_age_integrand.real, axis=-1)
+    theta = theta[..., 0]
+    peclet = peclet[..., 0]
+    plug_flow = 0.5 * erfc(0.5 * jnp.sqrt(peclet / theta) * (1.0 - theta))
+    step_response = plug_flow + scale * jnp.sum(weights * step_integrand.real, axis=-1)
+    return exit_age, step_response
+
+
+def closed_closed_curves(
+    theta: jax.Array, peclet: jax.Array, nodes: int = DEFAULT_NODES
+) -> tuple[jax.Array, jax.Array]:
+    """Return the closed–closed E(theta) and F(theta) (dimensionless time), zero for theta <= 0."""
+    theta, peclet = jnp.broadcast_arrays(jnp.asarray(theta, float), jnp.asarray(peclet, float))
+    nonzero = theta > _earliest_nonzero_theta(peclet)
+    theta_safe = jnp.where(nonzero, theta, 1.0)
+    exit_age, step_response = _line_integrals(theta_safe, peclet, nodes)
+    return jnp.where(nonzero, exit_age, 0.0), jnp.where(nonzero, step_response, 0.0)
