@@ -1,0 +1,60 @@
+"""The stochastic particle simulator: the independent checker of the network models (MODELS.md §4).
+
+Particles with species labels move between well-mixed compartments: every step, for every
+connection i -> j, ``moves_ij`` particles chosen at random among those in i move to j; a
+continuous blender takes a feed into its inlet compartments and loses as many over the
+weir. Its expectation is the discrete mean-field network of :mod:`axialmix.network`, but
+nothing of that model's mathematics is used here. Two engines, same random process:
+``"count"`` (species counts, multivariate hypergeometric draws, cost independent of the
+number of particles) and ``"identity"`` (individual particles, per-particle histories).
+"""
+
+from axialmix.particles.description import ParticleNetwork
+from axialmix.particles.feed import check_feed_schedule, constant_feed, feeder_feed
+from axialmix.particles.presets import (
+    axial_radial_grid,
+    four_compartment,
+    v_blender,
+    v_blender_loading,
+)
+from axialmix.particles.sampling import (
+    chi_square,
+    exit_age_from_outflow,
+    relative_standard_deviation,
+    sample_compartments,
+    sample_outflow,
+    sample_variance,
+    species_fraction,
+    variance_reduction_ratio,
+)
+from axialmix.particles.simulate import (
+    ENGINES,
+    SimulationResult,
+    TracerPulse,
+    simulate,
+    stderr_progress,
+)
+
+__all__ = [
+    "ENGINES",
+    "ParticleNetwork",
+    "SimulationResult",
+    "TracerPulse",
+    "axial_radial_grid",
+    "check_feed_schedule",
+    "chi_square",
+    "constant_feed",
+    "exit_age_from_outflow",
+    "feeder_feed",
+    "four_compartment",
+    "relative_standard_deviation",
+    "sample_compartments",
+    "sample_outflow",
+    "sample_variance",
+    "simulate",
+    "species_fraction",
+    "stderr_progress",
+    "v_blender",
+    "v_blender_loading",
+    "variance_reduction_ratio",
+]

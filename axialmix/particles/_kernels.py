@@ -1,0 +1,212 @@
+"""Compiled time-stepping loops of the two particle engines (see ``description`` for the process).
+
+Both kernels advance a state in place for up to ``n_steps`` steps and count the steps done in
+``progress[0]``, so the Python driver can run a long simulation in chunks, report between
+chunks and keep everything done so far when interrupted.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from axialmix.particles._random import multivariate_hypergeometric
+
+SPECIES_BITS = 8
+"""An identity-engine slot holds ``(particle number << SPECIES_BITS) | species``."""
+SPECIES_MASK = (1 << SPECIES_BITS) - 1
+FEED = -1
+"""Source code of an identity event for a particle fed in."""
+WEIR = -1
+"""Destination code of an identity event (and of a move) for a particle leaving over the weir."""
+TAGGED = -2
+"""Source code of an identity event for a particle relabelled as tracer in place."""
+
+
+@numba.njit(cache=True)
+def advance_counts(
+    counts,
+    holdups,
+    start,
+    destination,
+    count,
+    handed_out,
+    inlets,
+    feed_counts,
+    outflow_record,
+    n_steps,
+    progress,
+):
+    """Advance per-compartment species counts by up to ``n_steps`` steps (count engine).
+
+    ``counts`` is ``(compartments, species)``; ``feed_counts[k, q]`` the species counts fed
+    into ``inlets[q]`` at the end of step k of this chunk; ``outflow_record[k]`` receives the
+    species counts that left over the weir during step k of this chunk.
+    """
+    n_compartments, n_species = counts.shape
+    arrivals = np.zeros((n_compartments, n_species), np.int64)
+    selected = np.empty(n_species, np.int64)
+    share = np.empty(n_species, np.int64)
+    for step in range(n_steps):
+        for i in range(n_compartments):
+            handed = handed_out[i]
+            if handed == 0:
+                continue
+            multivariate_hypergeometric(counts[i], holdups[i], handed, selected)
+            for s in range(n_species):
+                counts[i, s] -= selected[s]
+            remaining = handed
+            last = start[i + 1] - 1
+            for e in range(start[i], start[i + 1]):
+                if e == last:
+                    for s in range(n_species):
+                        share[s] = selected[s]
+                else:
+                    multivariate_hypergeometric(selected, remaining, count[e], share)
+                    for s in range(n_species):
+                        selected[s] -= share[s]
+                    remaining -= count[e]
+                target = destination[e]
+                if target >= 0:
+                    for s in range(n_species):
+                        arrivals[target, s] += share[s]
+                else:
+                    for s in range(n_species):
+                        outflow_record[step, s] += share[s]
+        for j in range(n_compartments):
+            for s in range(n_species):
+                counts[j, s] += arrivals[j, s]
+                arrivals[j, s] = 0
+        for q in range(inlets.size):
+            for s in range(n_species):
+                counts[inlets[q], s] += feed_counts[step, q, s]
+        progress[0] += 1
+
+
+@numba.njit(cache=True)
+def advance_identities(
+    slots,
+    offsets,
+    counts,
+    start,
+    destination,
+    count,
+    handed_out,
+    inlets,
+    feed_counts,
+    outflow_record,
+    first_step,
+    n_steps,
+    tracked,
+    events,
+    moved,
+    picks,
+    write,
+    progress,
+):
+    """Advance individual particles by up to ``n_steps`` steps (identity engine).
+
+    ``slots[offsets[i]:offsets[i+1]]`` holds the particles of compartment i, each coded as
+    ``(particle number << 8) | species``. Selection is a partial Fisher-Yates shuffle of the
+    compartment's slots (cost per particle moved, not held); arrivals overwrite the slots
+    just handed out, which balance guarantees are exactly as many. ``counts`` is kept
+    up to date move by move. Moves of particles whose species is ``tracked`` are written to
+    ``events`` as ``(particle, step, from, to)``; the kernel stops early, before a step
+    whose events might not fit. ``progress`` holds ``[steps done, events written, next
+    particle number]``.
+
+    Positions are drawn as ``floor(U * n)`` from a 53-bit uniform U: each of the n outcomes
+    has probability ``1/n`` to within a relative ``n * 2**-53`` (about 1e-9 for a hold-up
+    of 10**7), far below anything a simulation can resolve, and about twice as fast as an
+    exact bounded integer.
+    """
+    n_compartments, n_species = counts.shape
+    track_any = False
+    for s in range(tracked.size):
+        if tracked[s]:
+            track_any = True
+    per_step_events = moved.size
+    tally = np.zeros(n_species, np.int64)
+    for step in range(n_steps):
+        if track_any:
+            fed = 0
+            for q in range(inlets.size):
+                for s in range(n_species):
+                    fed += feed_counts[step, q, s]
+            if progress[1] + per_step_events + fed > events.shape[0]:
+                return
+        global_step = first_step + step
+        pointer = 0
+        for i in range(n_compartments):
+            handed = handed_out[i]
+            if handed == 0:
+                continue
+            base = offsets[i]
+            held = offsets[i + 1] - base
+            # Draw all positions first, then swap: the swaps' cache misses then overlap
+            # instead of waiting on the generator (about 5x faster for large hold-ups).
+            for k in range(handed):
+                picks[k] = base + k + int(np.random.random() * (held - k))
+            for k in range(handed):
+                r = picks[k]
+                chosen = slots[r]
+                slots[r] = slots[base + k]
+                slots[base + k] = chosen
+                moved[pointer] = chosen
+                pointer += 1
+        for i in range(n_compartments):
+            write[i] = offsets[i]
+        pointer = 0
+        for i in range(n_compartments):
+            for e in range(start[i], start[i + 1]):
+                target = destination[e]
+                for s in range(n_species):
+                    tally[s] = 0
+                if target >= 0:
+                    w = write[target]
+                    for _ in range(count[e]):
+                        code = moved[pointer]
+                        pointer += 1
+                        slots[w] = code
+                        w += 1
+                        tally[code & SPECIES_MASK] += 1
+                    write[target] = w
+                    for s in range(n_species):
+                        counts[i, s] -= tally[s]
+                        counts[target, s] += tally[s]
+                else:
+                    for _ in range(count[e]):
+                        tally[moved[pointer] & SPECIES_MASK] += 1
+                        pointer += 1
+                    for s in range(n_species):
+                        counts[i, s] -= tally[s]
+                        outflow_record[step, s] += tally[s]
+                if not track_any:
+                    continue
+                for p in range(pointer - count[e], pointer):
+                    code = moved[p]
+                    species = code & SPECIES_MASK
+                    if tracked[species]:
+                        n = progress[1]
+                        events[n, 0] = code >> SPECIES_BITS
+                        events[n, 1] = global_step
+                        events[n, 2] = i
+                        events[n, 3] = target
+                        progress[1] = n + 1
+        for q in range(inlets.size):
+            j = inlets[q]
+            for s in range(n_species):
+                for _ in range(feed_counts[step, q, s]):
+                    number = progress[2]
+                    progress[2] = number + 1
+                    slots[write[j]] = (number << SPECIES_BITS) | s
+                    write[j] += 1
+                    counts[j, s] += 1
+                    if track_any and tracked[s]:
+                        n = progress[1]
+                        events[n, 0] = number
+                        events[n, 1] = global_step
+                        events[n, 2] = FEED
+                        events[n, 3] = j
+                        progress[1] = n + 1
+        progress[0] += 1

@@ -1,0 +1,456 @@
+"""Run the particle process on a network with either engine; one interface, one result type.
+
+Two engines implement the same random process (described in
+:mod:`axialmix.particles.description`):
+
+* ``"count"`` keeps species counts per compartment. Choosing ``L`` particles at random
+  without replacement from a compartment matters only through how many of each species are
+  chosen, a multivariate hypergeometric draw, so this is the same random process at a cost
+  independent of the number of particles (a few draws per connection per step).
+* ``"identity"`` keeps every particle (an array of particle codes per compartment) and
+  selects by a partial Fisher-Yates shuffle, at a cost proportional to particles moved. It
+  gives per-particle histories: every move of a tracked species is recorded.
+
+Long runs are driven in chunks: progress is reported after every report interval, and a
+``KeyboardInterrupt`` (Ctrl-C) ends the run after the current chunk, returning everything
+done so far (``result.interrupted`` is then true).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from axialmix.particles import _kernels
+from axialmix.particles._random import seed_generator
+from axialmix.particles.description import ParticleNetwork
+from axialmix.particles.feed import check_feed_schedule
+
+__all__ = ["ENGINES", "SimulationResult", "TracerPulse", "simulate", "stderr_progress"]
+
+ENGINES = ("count", "identity")
+_MAX_CHUNK_STEPS = 10_000
+_EVENT_BLOCK = 1 << 20
+
+
+@dataclass(frozen=True)
+class TracerPulse:
+    """An ideal tracer pulse: particles in the inlet compartment(s) relabelled as tracer.
+
+    At the start of step ``step``, ``particles`` particles chosen at random in the inlet
+    compartments (split in proportion to their feed) get the species ``species``. This is
+    the unit pulse into the inlet compartment of MODELS.md section 3, so the exit counts of
+    the tracer divided by ``particles`` estimate the network's RTD.
+
+    **Arguments:**
+
+    - `step`: step at whose start the tracer appears.
+    - `particles`: number of tracer particles.
+    - `species`: species index given to them (usually a species not otherwise fed).
+    """
+
+    step: int
+    particles: int
+    species: int
+
+    def __post_init__(self) -> None:
+        if self.step < 0:
+            raise ValueError(f"tracer pulse step must not be negative, got {self.step}.")
+        if self.particles <= 0:
+            raise ValueError(f"tracer pulse needs a positive particle count, got {self.particles}.")
+        if self.species < 0:
+            raise ValueError(f"tracer species must not be negative, got {self.species}.")
+
+
+@dataclass
+class SimulationResult:
+    """What a particle simulation produced (everything up to the last completed step).
+
+    **Fields:**
+
+    - `engine`, `seed`: how it was run.
+    - `steps_requested`, `steps_completed`: the run's length, and how far it got.
+    - `interrupted`: whether it was stopped early (Ctrl-C or a progress callback raising
+      ``KeyboardInterrupt``).
+    - `report_steps`: steps (after that many steps) at which counts were recorded.
+    - `counts`: species counts ``(reports, compartments, species)`` at `report_steps`.
+    - `outflow`: species counts that left over the weir during each step ``(steps, species)``
+      (zero rows for a batch blender).
+    - `fed`: the feed schedule actually used ``(steps, inlets, species)``.
+    - `tracer`: the tracer pulse, if any.
+    - `events`: identity engine only: ``(events, 4)`` rows ``(particle, step, from, to)`` for
+      every move of a tracked species; ``from = -1`` fed in, ``from = -2`` tagged as tracer
+      in place, ``to = -1`` left over the weir.
+    - `wall_seconds`: time spent in the simulation loop.
+    """
+
+    engine: str
+    seed: int
+    network: ParticleNetwork
+    steps_requested: int
+    steps_completed: int
+    interrupted: bool
+    report_steps: np.ndarray
+    counts: np.ndarray
+    outflow: np.ndarray
+    fed: np.ndarray
+    tracer: TracerPulse | None
+    events: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
+    wall_seconds: float = 0.0
+
+    @property
+    def final_counts(self) -> np.ndarray:
+        """Species counts per compartment after the last completed step."""
+        return self.counts[-1]
+
+    def particles_moved(self) -> int:
+        """Particles moved in the completed steps (over connections and the weir)."""
+        return self.steps_completed * self.network.moves_per_step
+
+    def exit_steps(self) -> np.ndarray:
+        """Identity engine: the step during which each tracked particle left (``-1`` if still in).
+
+        **Returns:** ``(particles, 2)`` integer array of rows ``(particle number, exit step)``.
+        """
+        if self.events.shape[0] == 0:
+            return np.zeros((0, 2), np.int64)
+        particles = np.unique(self.events[:, 0])
+        exits = np.full(particles.size, -1, np.int64)
+        left = self.events[self.events[:, 3] == _kernels.WEIR]
+        exits[np.searchsorted(particles, left[:, 0])] = left[:, 1]
+        return np.column_stack([particles, exits])
+
+    def history(self, particle: int) -> tuple[np.ndarray, np.ndarray]:
+        """Identity engine: compartments a tracked particle visited and steps spent in each.
+
+        **Returns:** ``(compartments, steps_spent)``; the last stay is counted up to its exit
+        or to the last completed step.
+        """
+        rows = self.events[self.events[:, 0] == particle]
+        if rows.shape[0] == 0:
+            raise ValueError(f"particle {particle} was not tracked.")
+        rows = rows[np.argsort(rows[:, 1], kind="stable")]
+        # A particle tagged or fed during step k sits in its compartment from the end of step
+        # k (fed) or the start of step k (tagged); a move during step k takes effect at its end.
+        entered = np.where(rows[:, 2] == _kernels.TAGGED, rows[:, 1], rows[:, 1] + 1)
+        places = rows[:, 3]
+        stays = places >= 0
+        ends = np.append(rows[1:, 1] + 1, self.steps_completed)
+        if not stays[-1]:
+            ends[-1] = rows[-1, 1] + 1
+        return places[stays], (ends - entered)[stays]
+
+
+def stderr_progress(step: int, total: int, elapsed: float) -> None:
+    """Print ``step / total`` and elapsed time on one line of standard error."""
+    share = 100.0 * step / total if total else 100.0
+    print(f"step {step}/{total} ({share:.1f} %), {elapsed:.2f} s", file=sys.stderr, flush=True)
+
+
+def _initial_counts(network: ParticleNetwork, initial_counts) -> np.ndarray:
+    counts = np.asarray(initial_counts)
+    if counts.ndim != 2 or counts.shape[0] != network.n_compartments or counts.shape[1] < 1:
+        raise ValueError(
+            f"initial_counts must have shape (compartments, species) with "
+            f"{network.n_compartments} compartments, got {counts.shape}."
+        )
+    if not np.issubdtype(counts.dtype, np.integer):
+        if np.any(np.rint(counts) != counts):
+            raise ValueError("initial_counts must hold whole numbers of particles.")
+    counts = counts.astype(np.int64)
+    if np.any(counts < 0):
+        raise ValueError("initial_counts must not be negative.")
+    wrong = np.nonzero(counts.sum(axis=1) != network.holdups)[0]
+    if wrong.size:
+        i = int(wrong[0])
+        raise ValueError(
+            f"initial counts of compartment {i} add up to {counts[i].sum()}, "
+            f"but its hold-up is {network.holdups[i]}."
+        )
+    return np.ascontiguousarray(counts)
+
+
+def _report_schedule(steps: int, report_every: int | None, report_steps) -> np.ndarray:
+    if report_steps is not None:
+        chosen = np.unique(np.asarray(report_steps, dtype=np.int64))
+        if chosen.size and (chosen[0] < 0 or chosen[-1] > steps):
+            raise ValueError(f"report_steps must lie between 0 and steps ({steps}).")
+    elif report_every is not None:
+        if report_every < 1:
+            raise ValueError(f"report_every must be at least 1, got {report_every}.")
+        chosen = np.arange(0, steps + 1, report_every, dtype=np.int64)
+    else:
+        chosen = np.array([0], np.int64)
+    return np.union1d(chosen, [0, steps]).astype(np.int64)
+
+
+def _apportion(total: int, weights: np.ndarray) -> np.ndarray:
+    # Largest-remainder split of a whole number in proportion to weights.
+    exact = total * weights / weights.sum()
+    shares = np.floor(exact).astype(np.int64)
+    order = np.argsort(shares - exact, kind="stable")
+    shares[order[: total - shares.sum()]] += 1
+    return shares
+
+
+class _CountEngine:
+    def __init__(self, network: ParticleNetwork, counts: np.ndarray, tracked: np.ndarray) -> None:
+        self.network = network
+        self.counts = counts
+        self.table = network.outgoing_table()
+        self.inlets = network.inlets().astype(np.int64)
+        # [steps done]: advanced in place by the kernel, so it is right even after Ctrl-C.
+        self.progress = np.zeros(1, np.int64)
+
+    @property
+    def steps_done(self) -> int:
+        return int(self.progress[0])
+
+    def advance(self, schedule: np.ndarray, outflow: np.ndarray, n_steps: int) -> None:
+        start, destination, count = self.table
+        _kernels.advance_counts(
+            self.counts,
+            self.network.holdups,
+            start,
+            destination,
+            count,
+            self.network.handed_out,
+            self.inlets,
+            schedule,
+            outflow,
+            n_steps,
+            self.progress,
+        )
+
+    def tag(self, compartment: int, particles: int, species: int, rng: np.random.Generator) -> None:
+        others = self.counts[compartment].copy()
+        others[species] = 0
+        chosen = rng.multivariate_hypergeometric(others, particles, method="marginals")
+        self.counts[compartment] -= chosen
+        self.counts[compartment, species] += particles
+
+    def events(self) -> np.ndarray:
+        return np.zeros((0, 4), np.int64)
+
+
+class _IdentityEngine:
+    def __init__(self, network: ParticleNetwork, counts: np.ndarray, tracked: np.ndarray) -> None:
+        self.network = network
+        self.counts = counts
+        self.tracked = tracked
+        self.table = network.outgoing_table()
+        self.inlets = network.inlets().astype(np.int64)
+        n_species = counts.shape[1]
+        self.offsets = np.zeros(network.n_compartments + 1, np.int64)
+        self.offsets[1:] = np.cumsum(network.holdups)
+        species = np.repeat(np.tile(np.arange(n_species), network.n_compartments), counts.ravel())
+        numbers = np.arange(self.offsets[-1], dtype=np.int64)
+        self.slots = (numbers << _kernels.SPECIES_BITS) | species
+        # [steps done, events in the buffer, next particle number]
+        self.progress = np.array([0, 0, self.offsets[-1]], np.int64)
+        block = max(_EVENT_BLOCK, 2 * (network.moves_per_step + network.throughput))
+        self.buffer = np.zeros((block if tracked.any() else 0, 4), np.int64)
+        self.blocks: list[np.ndarray] = []
+        self.moved = np.empty(network.moves_per_step, np.int64)
+        self.picks = np.empty(int(network.handed_out.max(initial=0)), np.int64)
+        self.write = np.empty(network.n_compartments, np.int64)
+
+    @property
+    def steps_done(self) -> int:
+        return int(self.progress[0])
+
+    def _flush(self) -> None:
+        self.blocks.append(self.buffer[: self.progress[1]].copy())
+        self.progress[1] = 0
+
+    def advance(self, schedule: np.ndarray, outflow: np.ndarray, n_steps: int) -> None:
+        start, destination, count = self.table
+        first = self.steps_done
+        while self.steps_done - first < n_steps:
+            offset = self.steps_done - first
+            _kernels.advance_identities(
+                self.slots,
+                self.offsets,
+                self.counts,
+                start,
+                destination,
+                count,
+                self.network.handed_out,
+                self.inlets,
+                schedule[offset:],
+                outflow[offset:],
+                self.steps_done,
+                n_steps - offset,
+                self.tracked,
+                self.buffer,
+                self.moved,
+                self.picks,
+                self.write,
+                self.progress,
+            )
+            if self.steps_done - first < n_steps:
+                self._flush()
+
+    def tag(self, compartment: int, particles: int, species: int, rng: np.random.Generator) -> None:
+        lo, hi = self.offsets[compartment], self.offsets[compartment + 1]
+        codes = self.slots[lo:hi]
+        candidates = np.nonzero((codes & _kernels.SPECIES_MASK) != species)[0]
+        chosen = rng.choice(candidates, size=particles, replace=False)
+        old_species = codes[chosen] & _kernels.SPECIES_MASK
+        numbers = codes[chosen] >> _kernels.SPECIES_BITS
+        codes[chosen] = (numbers << _kernels.SPECIES_BITS) | species
+        self.counts[compartment] -= np.bincount(old_species, minlength=self.counts.shape[1])
+        self.counts[compartment, species] += particles
+        if self.tracked[species]:
+            rows = np.column_stack(
+                [
+                    numbers,
+                    np.full(particles, self.steps_done),
+                    np.full(particles, _kernels.TAGGED),
+                    np.full(particles, compartment),
+                ]
+            )
+            self.blocks.append(rows.astype(np.int64))
+
+    def events(self) -> np.ndarray:
+        parts = [*self.blocks, self.buffer[: self.progress[1]]]
+        every = np.concatenate(parts) if parts else np.zeros((0, 4), np.int64)
+        # Rows are unique (a particle makes at most one move per step, plus perhaps being
+        # tagged at its start), so sorting out duplicates left by an interrupted flush is safe.
+        every = np.unique(every, axis=0)
+        return every[np.lexsort((every[:, 2] != _kernels.TAGGED, every[:, 1], every[:, 0]))]
+
+
+def simulate(
+    network: ParticleNetwork,
+    initial_counts,
+    steps: int,
+    *,
+    engine: str = "count",
+    seed: int = 0,
+    feed=None,
+    tracer: TracerPulse | None = None,
+    report_every: int | None = None,
+    report_steps: Sequence[int] | None = None,
+    tracked_species: Sequence[int] | None = None,
+    progress: Callable[[int, int, float], None] | None = None,
+) -> SimulationResult:
+    """Simulate the stochastic particle process on a network for a number of steps.
+
+    **Arguments:**
+
+    - `network`: the blender (:class:`ParticleNetwork`).
+    - `initial_counts`: species counts per compartment at step 0, ``(compartments,
+      species)``; each row must add up to the compartment's hold-up.
+    - `steps`: number of time steps.
+    - `engine`: ``"count"`` or ``"identity"`` (same random process; see the module).
+    - `seed`: seed of the run; the same seed, engine and inputs give the same result.
+    - `feed`: feed schedule ``(steps, inlets, species)`` for a continuous blender (see
+      :mod:`axialmix.particles.feed`); ``None`` for a batch blender.
+    - `tracer`: optional :class:`TracerPulse`.
+    - `report_every`: record counts (and call `progress`) every this many steps.
+    - `report_steps`: or record counts exactly at these steps. Step 0 and the last step are
+      always recorded.
+    - `tracked_species`: identity engine: species whose every move is recorded (default:
+      the tracer's species, if there is a tracer).
+    - `progress`: called as ``progress(step, steps, elapsed_seconds)`` at each report;
+      :func:`stderr_progress` prints it. A ``KeyboardInterrupt`` raised there or by Ctrl-C
+      stops the run after the current chunk and returns what was done.
+
+    **Returns:** a :class:`SimulationResult`.
+    """
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}.")
+    if int(steps) != steps or steps < 0:
+        raise ValueError(f"steps must be a non-negative whole number, got {steps}.")
+    steps = int(steps)
+    counts = _initial_counts(network, initial_counts)
+    n_species = counts.shape[1]
+    if tracer is not None:
+        if tracer.step >= steps:
+            raise ValueError(
+                f"tracer pulse step {tracer.step} must be before the last step ({steps})."
+            )
+        if not network.is_continuous:
+            raise ValueError("a tracer pulse needs a continuous blender (one with feed).")
+        if tracer.species >= n_species:
+            raise ValueError(
+                f"tracer species {tracer.species} is not below the number of species {n_species}."
+            )
+    if tracked_species is None:
+        tracked_species = (tracer.species,) if tracer is not None and engine == "identity" else ()
+    tracked = np.zeros(n_species, np.bool_)
+    for s in tracked_species:
+        if not 0 <= s < n_species:
+            raise ValueError(f"tracked species {s} is not a species index below {n_species}.")
+        tracked[s] = True
+    if tracked.any() and engine != "identity":
+        raise ValueError("tracked_species needs the identity engine.")
+    if engine == "identity":
+        if n_species > _kernels.SPECIES_MASK + 1:
+            raise ValueError(
+                f"the identity engine handles at most {_kernels.SPECIES_MASK + 1} species."
+            )
+        if network.n_particles + network.throughput * steps >= 1 << (63 - _kernels.SPECIES_BITS):
+            raise ValueError("too many particles over the run for the identity engine.")
+    schedule = check_feed_schedule(network, feed, steps, n_species)
+    reports = _report_schedule(steps, report_every, report_steps)
+    boundaries = np.union1d(reports, [] if tracer is None else [tracer.step])
+    outflow = np.zeros((steps, n_species), np.int64)
+    rng = np.random.default_rng([seed, 1])
+    seed_generator(seed)
+    state = (_CountEngine if engine == "count" else _IdentityEngine)(network, counts, tracked)
+
+    recorded_steps = [0]
+    recorded_counts = [counts.copy()]
+    interrupted = False
+    clock = time.perf_counter()
+    try:
+        while state.steps_done < steps:
+            done = state.steps_done
+            if tracer is not None and done == tracer.step:
+                inlets = network.inlets()
+                for j, share in zip(
+                    inlets, _apportion(tracer.particles, network.feed[inlets]), strict=True
+                ):
+                    available = network.holdups[j] - counts[j, tracer.species]
+                    if share > available:
+                        raise ValueError(
+                            f"tracer pulse of {tracer.particles} particles does not fit in the "
+                            f"inlet compartment(s) ({share} > {available} in compartment {j})."
+                        )
+                    state.tag(int(j), int(share), tracer.species, rng)
+            target = min(int(boundaries[boundaries > done][0]), done + _MAX_CHUNK_STEPS)
+            state.advance(schedule[done:target], outflow[done:target], target - done)
+            done = state.steps_done
+            if done in reports:
+                recorded_steps.append(done)
+                recorded_counts.append(counts.copy())
+                if progress is not None:
+                    progress(done, steps, time.perf_counter() - clock)
+    except KeyboardInterrupt:
+        interrupted = True
+    wall = time.perf_counter() - clock
+    done = state.steps_done
+    if recorded_steps[-1] != done:
+        recorded_steps.append(done)
+        recorded_counts.append(counts.copy())
+    return SimulationResult(
+        engine=engine,
+        seed=seed,
+        network=network,
+        steps_requested=steps,
+        steps_completed=done,
+        interrupted=interrupted,
+        report_steps=np.array(recorded_steps, np.int64),
+        counts=np.array(recorded_counts),
+        outflow=outflow[:done],
+        fed=schedule[:done],
+        tracer=tracer,
+        events=state.events(),
+        wall_seconds=wall,
+    )
