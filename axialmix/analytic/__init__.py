@@ -14,7 +14,8 @@ are returned in 1/(time unit).
 * inverse relations: :func:`peclet_from_moments`, :func:`sherritt_dispersion`,
   :func:`sherritt_peclet`, :func:`peclet_from_physical`, :func:`tau_from_physical`.
 
-:mod:`axialmix.analytic.highprecision` holds the slow mpmath series used as the reference
+:func:`peclet_from_variance_ratio` is the unchecked, traceable core of
+:func:`peclet_from_moments`. :mod:`axialmix.analytic.highprecision` holds the slow mpmath series used as the reference
 in tests and benchmarks.
 """
 
@@ -26,12 +27,36 @@ from axialmix.analytic.closed import (
     variance_closed,
     variance_ratio_closed,
 )
+from axialmix.analytic.inverse import (
+    peclet_from_moments,
+    peclet_from_physical,
+    peclet_from_variance_ratio,
+    sherritt_dispersion,
+    sherritt_peclet,
+    tau_from_physical,
+)
+from axialmix.analytic.open import exit_age_open, mean_open, step_response_open, variance_open
+from axialmix.analytic.tanks import exit_age_tanks, mean_tanks, step_response_tanks, variance_tanks
 
 __all__ = [
     "exit_age_closed",
+    "exit_age_open",
+    "exit_age_tanks",
     "mean_closed",
+    "mean_open",
+    "mean_tanks",
+    "peclet_from_moments",
+    "peclet_from_physical",
+    "peclet_from_variance_ratio",
+    "sherritt_dispersion",
+    "sherritt_peclet",
     "step_response_closed",
+    "step_response_open",
+    "step_response_tanks",
+    "tau_from_physical",
     "transfer_function_closed",
     "variance_closed",
+    "variance_open",
     "variance_ratio_closed",
+    "variance_tanks",
 ]

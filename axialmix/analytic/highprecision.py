@@ -21,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["eigenvalues_closed", "exit_age_closed_series"]
+__all__ = ["eigenvalues_closed", "exit_age_closed_series", "step_response_closed_series"]
 
 
 def _working_digits(peclet: float, extra_digits: int) -> int:
@@ -81,12 +81,37 @@ def exit_age_closed_series(
     - `theta`: dimensionless times ``t / tau`` (any order); values ``<= 0`` give 0.
     - `peclet`: Peclet number (dimensionless, positive).
     - `extra_digits`: digits of precision beyond those lost to the ``e^{Pe/2}`` cancellation;
-      the result is accurate to about ``10^-extra_digits`` relative to the largest term.
+      the result is accurate to about ``10^-extra_digits`` in absolute terms.
 
     **Returns:**
 
     A float64 numpy array of ``E(theta)`` in units of ``1/tau``.
     """
+    return _closed_series(theta, peclet, extra_digits, cumulative=False)
+
+
+def step_response_closed_series(
+    theta: Sequence[float] | np.ndarray, peclet: float, extra_digits: int = 30
+) -> np.ndarray:
+    """Return the closed–closed cumulative distribution F(theta) from the eigenfunction series.
+
+    ``F = 1 - ∫_theta^∞ E``, integrated term by term: each term of E gains the factor
+    ``4 Pe / (4 λ_n² + Pe²)``.
+
+    **Arguments:**
+
+    - `theta`: dimensionless times ``t / tau`` (any order); values ``<= 0`` give 0.
+    - `peclet`: Peclet number (dimensionless, positive).
+    - `extra_digits`: digits of precision beyond those lost to the ``e^{Pe/2}`` cancellation.
+
+    **Returns:**
+
+    A float64 numpy array of ``F(theta)`` (dimensionless).
+    """
+    return _closed_series(theta, peclet, extra_digits, cumulative=True)
+
+
+def _closed_series(theta, peclet: float, extra_digits: int, cumulative: bool) -> np.ndarray:
     import mpmath
 
     digits = _working_digits(peclet, extra_digits)
@@ -104,17 +129,19 @@ def exit_age_closed_series(
         theta_min = float(positive.min())
         lam_needed = math.sqrt(peclet * (peclet / 2.0 + 5.0 - log_tolerance) / theta_min)
         roots = eigenvalues_closed(peclet, int(lam_needed / math.pi) + 2, digits)
-        weights = [
-            (1 if n % 2 == 0 else -1) * lam**2 / (4 * lam**2 + pe**2 + 4 * pe)
-            for n, lam in enumerate(roots)
-        ]
-        decay = [(4 * lam**2 + pe**2) / (4 * pe) for lam in roots]
         prefactor = 8 * mpmath.exp(pe / 2)
+        weights = []
+        for n, lam in enumerate(roots):
+            weight = (1 if n % 2 == 0 else -1) * lam**2 / (4 * lam**2 + pe**2 + 4 * pe)
+            if cumulative:
+                weight *= -4 * pe / (4 * lam**2 + pe**2)
+            weights.append(prefactor * weight)
+        decay = [(4 * lam**2 + pe**2) / (4 * pe) for lam in roots]
         for index in np.flatnonzero(theta > 0):
             th = mpmath.mpf(float(theta.flat[index]))
-            total = mpmath.mpf(0)
+            total = mpmath.mpf(1) if cumulative else mpmath.mpf(0)
             for lam, weight, rate in zip(roots, weights, decay, strict=True):
-                term = prefactor * weight * mpmath.exp(-rate * th)
+                term = weight * mpmath.exp(-rate * th)
                 total += term
                 # Past λ² θ / Pe = 1 the magnitudes decrease, so the alternating tail is
                 # bounded by the last term.
