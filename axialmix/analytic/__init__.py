@@ -15,8 +15,8 @@ are returned in 1/(time unit).
   :func:`sherritt_peclet`, :func:`peclet_from_physical`, :func:`tau_from_physical`.
 
 :func:`peclet_from_variance_ratio` is the unchecked, traceable core of
-:func:`peclet_from_moments`. :mod:`axialmix.analytic.highprecision` holds the slow mpmath series used as the reference
-in tests and benchmarks.
+:func:`peclet_from_moments`. :mod:`axialmix.analytic.highprecision` holds the slow mpmath
+series used as the reference in tests and benchmarks.
 """
 
 from axialmix.analytic.closed import (

@@ -19,7 +19,10 @@ def _validate(t: ArrayLike, tau: ArrayLike, peclet: ArrayLike) -> None:
 
 
 def exit_age_open(t: ArrayLike, tau: ArrayLike, peclet: ArrayLike) -> jax.Array:
-    """Return the open–open exit-age density ``E = sqrt(Pe/(4 pi theta)) e^{-Pe (1-theta)²/(4 theta)} / tau``.
+    """Return the open–open exit-age density E(t) in closed form.
+
+    ``E = sqrt(Pe / (4 pi theta)) e^{-Pe (1-theta)² / (4 theta)} / tau`` with ``theta = t/tau``
+    (MODELS.md section 2).
 
     **Arguments:**
 
