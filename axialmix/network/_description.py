@@ -511,14 +511,26 @@ class CompartmentNetwork:
         dt = _finite_number(time_step, "time_step")
         if dt <= 0:
             raise ValueError(f"time_step must be positive, got {dt}.")
-        return replace(self, time_step=dt).with_rates(self.rates * dt, self.outflow_rates * dt)
+        return replace(
+            self,
+            time_step=dt,
+            connections=tuple(Connection(c.source, c.target, c.rate * dt)
+                              for c in self.connections),
+            outlets=tuple(Outlet(o.compartment, o.rate * dt) for o in self.outlets),
+        )
 
     def continuous(self) -> CompartmentNetwork:
         """The continuous-time network with rates ``fraction / time_step`` per unit time."""
         if self.time_step is None:
             return self
         dt = self.time_step
-        return replace(self, time_step=None).with_rates(self.rates / dt, self.outflow_rates / dt)
+        return replace(
+            self,
+            time_step=None,
+            connections=tuple(Connection(c.source, c.target, c.rate / dt)
+                              for c in self.connections),
+            outlets=tuple(Outlet(o.compartment, o.rate / dt) for o in self.outlets),
+        )
 
     def steady_state_holdups(self, total_holdup: float = 1.0) -> np.ndarray:
         """Holdups that stay constant under the network's flows, scaled to `total_holdup`.
