@@ -1,0 +1,223 @@
+"""Accuracy and speed of the closed–closed ADM exit age: exact, JAX FV, rtdpy and FiPy.
+
+For each Peclet number the exit age E(theta) (tau = 1, so t = theta) is computed on
+theta in [0, 3] at 301 points by
+
+* ``exact``     axialmix.analytic.exit_age_closed (Bromwich inversion, JAX, jitted);
+* ``FV``        axialmix.adm.exit_age (JAX finite volumes, jitted): forward; forward and the
+                gradient of a least-squares loss with respect to (tau, Pe) by
+                ``jax.value_and_grad``; and a vmapped batch of 100 (tau, Pe) sets, reported
+                per curve;
+* ``rtdpy``     rtdpy.AD_cc (method of lines, scipy BDF) with nx = 200 and 400 nodes;
+* ``FiPy``      axialmix.reference.exit_age_fipy (backward Euler, central differences).
+
+Errors are ``max |E - E_ref| / max E_ref`` against the extended-precision eigenfunction
+series (axialmix.analytic.highprecision, mpmath) computed here. rtdpy's grid is its own
+``arange(0, 3, 0.01)`` (300 points, the first 300 of ours), and its error is measured on that
+grid. Timings: one warm-up call (for JAX the jit compilation, reported separately), then the
+median wall time of several repeats with ``block_until_ready``; FiPy is run once (seconds
+per curve).
+
+Run: ``python benchmarks/adm.py`` (a few minutes on 2 cores), ``--quick`` for a smoke run,
+``--pe 10 100`` to select Peclet numbers.
+"""
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import axialmix  # noqa: F401  (float64)
+from axialmix.analytic import exit_age_closed
+from axialmix.analytic.highprecision import exit_age_closed_series
+from axialmix.reference import exit_age_fipy
+
+PECLET_NUMBERS = (0.1, 1.0, 10.0, 100.0, 1000.0)
+THETA = np.linspace(0.0, 3.0, 301)
+BATCH_SIZE = 100
+FIPY_CELLS = 600  # cell Peclet number below 2 up to Pe = 1000; cost hardly depends on it
+FIPY_STEP = 0.002  # theta; 1500 backward-Euler steps per curve
+
+
+def timed(function: Callable[[], object], repeats: int) -> tuple[float, float]:
+    """Return (extra seconds of the first call, median seconds of `repeats` further calls).
+
+    The first call's extra time is its duration minus the median: for a jitted function,
+    the compilation.
+    """
+    start = time.perf_counter()
+    jax.block_until_ready(function())
+    first = time.perf_counter() - start
+    samples: list[float] = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(function())
+        samples.append(time.perf_counter() - start)
+    median = statistics.median(samples) if samples else first
+    return max(first - median, 0.0), median
+
+
+def peak_error(curve: np.ndarray, reference: np.ndarray) -> float:
+    """Max absolute deviation relative to the reference peak."""
+    return float(np.max(np.abs(np.asarray(curve) - reference)) / np.max(reference))
+
+
+def benchmark_peclet(peclet: float, repeats: int, quick: bool) -> tuple[list[dict], dict]:
+    """Rows of the accuracy/speed table and the promised ratios for one Peclet number."""
+    from axialmix.adm import exit_age
+    from rtdpy import AD_cc
+
+    rows = []
+    theta = jnp.asarray(THETA)
+    reference = exit_age_closed_series(THETA, peclet)
+
+    exact = jax.jit(lambda tau, pe: exit_age_closed(theta, tau, pe))
+    compile_s, run_s = timed(lambda: exact(1.0, peclet), repeats)
+    rows.append(
+        dict(
+            method="exact (Bromwich)",
+            error=peak_error(exact(1.0, peclet), reference),
+            seconds=run_s,
+            compile=compile_s,
+        )
+    )
+
+    forward = jax.jit(lambda tau, pe: exit_age(theta, tau, pe))
+    compile_s, run_s = timed(lambda: forward(1.0, peclet), repeats)
+    fv_curve = np.asarray(forward(1.0, peclet))
+    rows.append(
+        dict(
+            method="FV forward",
+            error=peak_error(fv_curve, reference),
+            seconds=run_s,
+            compile=compile_s,
+        )
+    )
+    fv_forward_s = run_s
+
+    target = jnp.asarray(reference)
+
+    def loss(params):
+        return jnp.mean((exit_age(theta, params[0], params[1]) - target) ** 2)
+
+    value_and_grad = jax.jit(jax.value_and_grad(loss))
+    params = jnp.array([1.0, peclet])
+    compile_s, run_s = timed(lambda: value_and_grad(params), repeats)
+    rows.append(dict(method="FV forward+grad", error=None, seconds=run_s, compile=compile_s))
+    fv_grad_s = run_s
+
+    rng = np.random.default_rng(0)
+    taus = jnp.asarray(rng.uniform(0.8, 1.2, BATCH_SIZE))
+    pes = jnp.asarray(peclet * rng.uniform(0.8, 1.2, BATCH_SIZE))
+    batch = jax.jit(jax.vmap(lambda tau, pe: exit_age(theta, tau, pe)))
+    compile_s, run_s = timed(lambda: batch(taus, pes), max(1, repeats // 4))
+    rows.append(
+        dict(
+            method=f"FV vmap {BATCH_SIZE}, per curve",
+            error=None,
+            seconds=run_s / BATCH_SIZE,
+            compile=compile_s,
+        )
+    )
+
+    rtdpy_seconds = {}
+    for nx in (200, 400):
+
+        def rtdpy_curve(nx=nx):
+            return AD_cc(tau=1.0, peclet=peclet, dt=0.01, time_end=3.0, nx=nx)
+
+        first_s, run_s = timed(rtdpy_curve, 1 if quick else 3)
+        model = rtdpy_curve()
+        own_grid = np.asarray(model.time)
+        assert np.allclose(own_grid, THETA[: own_grid.size], rtol=0, atol=1e-12)
+        error = peak_error(model.exitage, reference[: own_grid.size])
+        rows.append(dict(method=f"rtdpy AD_cc nx={nx}", error=error, seconds=run_s, compile=None))
+        rtdpy_seconds[nx] = run_s
+
+    fipy_step = 0.01 if quick else FIPY_STEP
+    start = time.perf_counter()
+    fipy_curve = exit_age_fipy(THETA, 1.0, peclet, n_cells=FIPY_CELLS, dt=fipy_step)
+    fipy_s = time.perf_counter() - start
+    rows.append(
+        dict(
+            method=f"FiPy n={FIPY_CELLS} dθ={fipy_step:g}",
+            error=peak_error(fipy_curve, reference),
+            seconds=fipy_s,
+            compile=None,
+        )
+    )
+
+    exact_s = rows[0]["seconds"]
+    ratios = {
+        "FV/rtdpy200": rtdpy_seconds[200] / fv_forward_s,
+        "FVgrad/FV": fv_grad_s / fv_forward_s,
+        "FV/FiPy": fipy_s / fv_forward_s,
+        "exact/rtdpy200": rtdpy_seconds[200] / exact_s,
+    }
+    return rows, ratios
+
+
+def format_seconds(seconds: float | None) -> str:
+    if seconds is None:
+        return "-"
+    if seconds < 1e-3:
+        return f"{seconds * 1e6:8.1f} us"
+    if seconds < 1.0:
+        return f"{seconds * 1e3:8.2f} ms"
+    return f"{seconds:8.2f} s "
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--quick", action="store_true", help="fewer repeats, coarse FiPy step, Pe 10 and 100 only"
+    )
+    parser.add_argument("--pe", type=float, nargs="+", help="Peclet numbers to run")
+    args = parser.parse_args()
+    peclets = args.pe or ((10.0, 100.0) if args.quick else PECLET_NUMBERS)
+    repeats = 3 if args.quick else 15
+
+    print(
+        f"closed-closed ADM exit age, theta in [0, 3] at {THETA.size} points, tau = 1; "
+        f"jax {jax.__version__} on {jax.devices()[0].platform}"
+    )
+    print(
+        "error = max|E - E_ref| / max E_ref, E_ref = mpmath eigenfunction series; "
+        "time = median per curve; compile = first call (jit) extra"
+    )
+    header = f"{'Pe':>7}  {'method':<28}{'error':>11}  {'time/curve':>11}  {'compile':>11}"
+    ratio_lines = []
+    print(header)
+    print("-" * len(header))
+    for peclet in peclets:
+        rows, ratios = benchmark_peclet(peclet, repeats, args.quick)
+        for row in rows:
+            error = "-" if row["error"] is None else f"{row['error']:.2e}"
+            compile_text = format_seconds(row["compile"]) if row["compile"] else "-"
+            print(
+                f"{peclet:>7g}  {row['method']:<28}{error:>11}  "
+                f"{format_seconds(row['seconds']):>11}  {compile_text:>11}",
+                flush=True,
+            )
+        print()
+        ratio_lines.append((peclet, ratios))
+
+    names = list(ratio_lines[0][1])
+    print("ratios measured in this run:")
+    print("  FV/rtdpy200    speed-up of the FV forward solve over rtdpy AD_cc nx=200")
+    print("  FVgrad/FV      cost of FV forward + gradient w.r.t. (tau, Pe) over forward alone")
+    print("  FV/FiPy        speed-up of the FV forward solve over the FiPy reference")
+    print("  exact/rtdpy200 speed-up of the exact solution over rtdpy AD_cc nx=200")
+    ratio_header = f"{'Pe':>7}" + "".join(f"  {name:>15}" for name in names)
+    print(ratio_header)
+    print("-" * len(ratio_header))
+    for peclet, ratios in ratio_lines:
+        print(f"{peclet:>7g}" + "".join(f"  {ratios[name]:>15.3g}" for name in names))
+
+
+if __name__ == "__main__":
+    main()
