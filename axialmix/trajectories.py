@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from scipy.signal import lfilter
 from scipy.special import erf
 
 __all__ = [
@@ -580,8 +581,11 @@ class MeanSquareDisplacement:
     - `drift_velocity`: the drift v̄ removed, m/s (for a pooled MSD, the mean over trajectories).
     - `bridge_corrected`: whether each squared displacement was divided by ``1 - Δt/T``.
     - `max_lag_time`: largest lag kept, s.
-    - `trajectory_msd`: for a pooled MSD, each trajectory's own MSD on the same lag bins,
-      m², shape ``(n_trajectories, n_lags)``, NaN beyond a trajectory's largest lag.
+    - `trajectory_msd`: MSDs of independent parts of the data on the same lag bins, m²,
+      NaN where a part has no pairs: each trajectory's own MSD for a pooled MSD, or, for a
+      single trajectory, the MSDs of its 8 consecutive segments (pairs within a segment,
+      same drift). Their spread gives the statistical error used by
+      :func:`fit_dispersion_coefficient`. Shape ``(n_parts, n_lags)``.
     """
 
     lag_time: np.ndarray
@@ -621,8 +625,69 @@ class DispersionFit:
     drift_velocity: float
 
 
+_SINGLE_TRAJECTORY_SEGMENTS = 8
+_DEFAULT_MAX_LAG_STEPS = 2000
+
+
 def _median_step(trajectories: list[Trajectory]) -> float:
     return float(np.median(np.concatenate([np.diff(tr.time) for tr in trajectories])))
+
+
+def _binned_sums(
+    time: np.ndarray,
+    detrended: np.ndarray,
+    time_step: float,
+    n_bins: int,
+    max_lag_time: float,
+    bridge_duration: float | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Binned sums of squared displacements, of lags and pair counts of one detrended path.
+
+    Bin ``k - 1`` holds pairs with lag closest to ``k · time_step``, k = 1..n_bins. With
+    `bridge_duration` T each squared displacement is divided by ``1 - Δt/T``.
+    """
+    sum_sq = np.zeros(n_bins)
+    sum_lag = np.zeros(n_bins)
+    count = np.zeros(n_bins)
+    n = time.size
+    if n < 2:
+        return sum_sq, sum_lag, count
+    dt = np.diff(time)
+    if np.all(np.abs(dt - time_step) <= 1e-6 * time_step):
+        # Uniform sampling: all lags at once from the autocorrelation (FFT),
+        # Σ_i (y_{i+k} - y_i)² = Σ_{i>=k} y_i² + Σ_{i<n-k} y_i² - 2 Σ_i y_i y_{i+k}.
+        y = detrended - detrended.mean()
+        n_lags = min(n_bins, int(math.floor(max_lag_time / time_step * (1 + 1e-9))), n - 1)
+        size = 1 << int(math.ceil(math.log2(2 * n)))
+        spectrum = np.fft.rfft(y, size)
+        autocorrelation = np.fft.irfft(spectrum * np.conj(spectrum), size)[1 : n_lags + 1]
+        squares = np.concatenate([[0.0], np.cumsum(y**2)])
+        k = np.arange(1, n_lags + 1)
+        pairs = n - k
+        sums = (squares[n] - squares[k]) + squares[n - k] - 2.0 * autocorrelation
+        lag = k * time_step
+        if bridge_duration is not None:
+            sums = sums / (1.0 - lag / bridge_duration)
+        sum_sq[:n_lags] = sums
+        sum_lag[:n_lags] = lag * pairs
+        count[:n_lags] = pairs
+        return sum_sq, sum_lag, count
+    for offset in range(1, n):
+        lag = time[offset:] - time[:-offset]
+        keep = lag <= max_lag_time * (1 + 1e-9)
+        if not np.any(keep):
+            break
+        lag = lag[keep]
+        squared = (detrended[offset:][keep] - detrended[:-offset][keep]) ** 2
+        if bridge_duration is not None:
+            squared = squared / (1.0 - lag / bridge_duration)
+        bins = np.rint(lag / time_step).astype(int)
+        inside = (bins >= 1) & (bins <= n_bins)
+        bins = bins[inside] - 1
+        sum_sq += np.bincount(bins, squared[inside], n_bins)
+        sum_lag += np.bincount(bins, lag[inside], n_bins)
+        count += np.bincount(bins, None, n_bins)
+    return sum_sq, sum_lag, count
 
 
 def _msd_sums(
@@ -631,63 +696,38 @@ def _msd_sums(
     n_bins: int,
     max_lag_time: float,
     drift_velocity: float | None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Binned sums of squared displacements, of lags and pair counts for one trajectory.
+    segments: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
+    """Binned MSD sums of one trajectory, and of its `segments` consecutive pieces.
 
-    Bin ``k - 1`` holds pairs with lag closest to ``k · time_step``, k = 1..n_bins.
+    Returns the sums of squared displacements, of lags and the pair counts (each of shape
+    ``(n_bins,)``), the drift removed, and the squared-displacement sums and counts of each
+    segment (shape ``(segments, n_bins)``; pairs within a segment only, same detrending).
     """
     t, z = trajectory.time, trajectory.z
-    total = trajectory.duration
-    bridge = drift_velocity is None
-    velocity = (z[-1] - z[0]) / total if bridge else float(drift_velocity)
-    detrended = z - z[0] - velocity * (t - t[0])
-    detrended = detrended - detrended.mean()
     dt = np.diff(t)
     if np.max(dt) > 3.0 * time_step:
         raise ValueError(
             f"Trajectory {trajectory.trajectory_id!r}: a gap of {np.max(dt):g} s exceeds three "
             f"time steps ({time_step:g} s); split the trajectory or resample it first."
         )
-    sum_sq = np.zeros(n_bins)
-    sum_lag = np.zeros(n_bins)
-    count = np.zeros(n_bins)
-    n = t.size
-    if np.all(np.abs(dt - time_step) <= 1e-6 * time_step):
-        # Uniform sampling: all lags at once from the autocorrelation (FFT),
-        # Σ_i (y_{i+k} - y_i)² = Σ_{i>=k} y_i² + Σ_{i<n-k} y_i² - 2 Σ_i y_i y_{i+k}.
-        n_lags = min(n_bins, int(math.floor(max_lag_time / time_step * (1 + 1e-9))), n - 1)
-        size = 1 << int(math.ceil(math.log2(2 * n)))
-        spectrum = np.fft.rfft(detrended, size)
-        autocorrelation = np.fft.irfft(spectrum * np.conj(spectrum), size)[1 : n_lags + 1]
-        squares = np.concatenate([[0.0], np.cumsum(detrended**2)])
-        k = np.arange(1, n_lags + 1)
-        pairs = n - k
-        sums = (squares[n] - squares[k]) + squares[n - k] - 2.0 * autocorrelation
-        lag = k * time_step
-        if bridge:
-            # With v̄ estimated from the same path, E[(Δz - v̄Δt)²] = 2 D Δt (1 - Δt/T) for
-            # Brownian motion (a Brownian bridge); dividing by (1 - Δt/T) removes this bias.
-            sums = sums / (1.0 - lag / total)
-        sum_sq[:n_lags] = sums
-        sum_lag[:n_lags] = lag * pairs
-        count[:n_lags] = pairs
-        return sum_sq, sum_lag, count, velocity
-    for offset in range(1, n):
-        lag = t[offset:] - t[:-offset]
-        keep = lag <= max_lag_time * (1 + 1e-9)
-        if not np.any(keep):
-            break
-        lag = lag[keep]
-        squared = (detrended[offset:][keep] - detrended[:-offset][keep]) ** 2
-        if bridge:
-            squared = squared / (1.0 - lag / total)
-        bins = np.rint(lag / time_step).astype(int)
-        inside = (bins >= 1) & (bins <= n_bins)
-        bins = bins[inside] - 1
-        sum_sq += np.bincount(bins, squared[inside], n_bins)
-        sum_lag += np.bincount(bins, lag[inside], n_bins)
-        count += np.bincount(bins, None, n_bins)
-    return sum_sq, sum_lag, count, velocity
+    # With v̄ estimated from the same path, E[(Δz - v̄Δt)²] = 2 D Δt (1 - Δt/T) for Brownian
+    # motion (a Brownian bridge); dividing by (1 - Δt/T) removes this bias.
+    bridge = drift_velocity is None
+    velocity = (z[-1] - z[0]) / trajectory.duration if bridge else float(drift_velocity)
+    bridge_duration = trajectory.duration if bridge else None
+    detrended = z - z[0] - velocity * (t - t[0])
+    sum_sq, sum_lag, count = _binned_sums(
+        t, detrended, time_step, n_bins, max_lag_time, bridge_duration
+    )
+    edges = np.linspace(0, t.size, segments + 1).astype(int)
+    pieces = [
+        _binned_sums(t[a:b], detrended[a:b], time_step, n_bins, max_lag_time, bridge_duration)
+        for a, b in zip(edges[:-1], edges[1:], strict=True)
+    ]
+    segment_sq = np.array([piece[0] for piece in pieces])
+    segment_count = np.array([piece[2] for piece in pieces])
+    return sum_sq, sum_lag, count, velocity, segment_sq, segment_count
 
 
 def mean_square_displacement(
@@ -716,7 +756,9 @@ def mean_square_displacement(
     - `min_independent_displacements`: the largest lag is ``T / min_independent_displacements``
       so that the MSD at every lag still averages at least that many non-overlapping
       displacements.
-    - `max_lag_time`: a smaller largest lag, s, if wanted.
+    - `max_lag_time`: a smaller largest lag, s. By default lags also stop at 2000 sampling
+      steps (34 s at 0.0169 s), far beyond any short-time regime of a blender; give a
+      larger value to go further.
 
     **Returns:**
 
@@ -760,6 +802,7 @@ def _pooled_msd(
     drift_velocity: float | None,
     min_independent_displacements: int,
     max_lag_time: float | None,
+    min_lags: int = 4,
 ) -> MeanSquareDisplacement:
     if not trajectories:
         raise ValueError("trajectories is empty; at least one trajectory is needed.")
@@ -770,26 +813,36 @@ def _pooled_msd(
         )
     time_step = _median_step(trajectories)
     limits = np.array([tr.duration / min_independent_displacements for tr in trajectories])
-    if max_lag_time is not None:
-        limits = np.minimum(limits, _check_positive("max_lag_time", max_lag_time))
+    limits = np.minimum(
+        limits,
+        _DEFAULT_MAX_LAG_STEPS * time_step if max_lag_time is None
+        else _check_positive("max_lag_time", max_lag_time),
+    )
     pooled_limit = float(np.median(limits))
     n_bins = int(math.floor(pooled_limit / time_step * (1 + 1e-9)))
-    if n_bins < 4:
+    if n_bins < min_lags:
         raise ValueError(
             f"trajectories are too short for a mean-square displacement: the largest lag "
-            f"{pooled_limit:g} s spans {n_bins} time step(s) of {time_step:g} s (4 are needed);"
-            " lower min_independent_displacements or supply longer trajectories."
+            f"{pooled_limit:g} s spans {n_bins} time step(s) of {time_step:g} s ({min_lags} "
+            "are needed); lower min_independent_displacements or supply longer trajectories."
         )
+    # A single trajectory is cut into segments whose MSDs estimate its statistical error.
+    segments = _SINGLE_TRAJECTORY_SEGMENTS if len(trajectories) == 1 else 1
     sums = [
-        _msd_sums(trajectory, time_step, n_bins, min(limit, pooled_limit), drift_velocity)
+        _msd_sums(trajectory, time_step, n_bins, min(limit, pooled_limit), drift_velocity,
+                  segments)
         for trajectory, limit in zip(trajectories, limits, strict=True)
     ]
     sum_sq = np.array([s[0] for s in sums])
     count = np.array([s[2] for s in sums])
     total_count = count.sum(axis=0)
     filled = total_count > 0
+    if segments > 1:
+        row_sq, row_count = sums[0][4], sums[0][5]
+    else:
+        row_sq, row_count = sum_sq, count
     with np.errstate(invalid="ignore", divide="ignore"):
-        trajectory_msd = np.where(count > 0, sum_sq / count, np.nan)[:, filled]
+        trajectory_msd = np.where(row_count > 0, row_sq / row_count, np.nan)[:, filled]
     return MeanSquareDisplacement(
         lag_time=np.sum([s[1] for s in sums], axis=0)[filled] / total_count[filled],
         msd=sum_sq.sum(axis=0)[filled] / total_count[filled],
@@ -829,11 +882,13 @@ def fit_dispersion_coefficient(
     ``[Δt, 2 Δt]``. The window starts at the shortest lag ``Δt_s`` from which the local
     slope stays within ``tolerance`` (relative) of its value at ``Δt_s`` for every lag up
     to ``2 Δt_s``: inside the short-time regime (ballistic or otherwise correlated motion)
-    the local slope still changes, in the linear regime it does not. For a pooled MSD a
-    change is also accepted when it is within twice its standard error (estimated from the
-    spread of the same change over trajectories), so that statistical noise is not mistaken
-    for curvature; with few data the rule therefore cannot see a short-time regime weaker
-    than the noise. The window
+    the local slope still changes, in the linear regime it does not. A change is also
+    accepted when it is within twice its standard error, estimated from the spread of the
+    same change over the independent parts in `msd.trajectory_msd` (trajectories, or
+    segments of a single trajectory), so that statistical noise is not mistaken for
+    curvature; with few data the rule therefore cannot see a short-time regime weaker than
+    the noise. Candidate starts are every lag at first, then lags a factor 2^(1/8) apart.
+    The window
     is ``[Δt_s, window_ratio · Δt_s]``, the range over which flatness was checked for the
     default ratio 4, capped at the largest lag of the MSD (already limited so that enough
     independent displacements remain, see :func:`mean_square_displacement`). A short
@@ -876,32 +931,38 @@ def fit_dispersion_coefficient(
         raise ValueError(
             f"the mean-square displacement has {lag.size} lags; at least 4 are needed."
         )
-    # Local slopes over [lag_j, 2 lag_j] for every j whose doubled lag is still available,
-    # for the pooled MSD and for each trajectory's own MSD.
+    # Local slopes over [lag_j, 2 lag_j], for the pooled MSD and for each row of
+    # trajectory_msd, at candidate lags spaced by a factor 2^(1/8) (every lag at first).
     n_local = int(np.searchsorted(lag, lag[-1] / 2.0, side="right"))
-    local = np.full(n_local, np.nan)
-    trajectory_local = np.full((msd.trajectory_msd.shape[0], n_local), np.nan)
-    for j in range(n_local):
+    n_grid = 8 * int(math.log2(n_local) + 1)
+    candidates = np.unique(np.geomspace(1, n_local, n_grid).astype(int)) - 1
+    local = np.full(candidates.size, np.nan)
+    row_local = np.full((msd.trajectory_msd.shape[0], candidates.size), np.nan)
+    for position, j in enumerate(candidates):
         inside = (lag >= lag[j]) & (lag <= 2.0 * lag[j] * (1 + 1e-9))
-        local[j] = _line_fit(lag[inside], values[inside])[0]
-        trajectory_local[:, j] = _line_fit(lag[inside], msd.trajectory_msd[:, inside])[0]
-    n_start = max(1, int(np.searchsorted(lag, lag[n_local - 1] / 2.0, side="right")))
+        local[position] = _line_fit(lag[inside], values[inside])[0]
+        row_local[:, position] = _line_fit(lag[inside], msd.trajectory_msd[:, inside])[0]
+    candidate_lag = lag[candidates]
+    n_start = max(1, int(np.searchsorted(candidate_lag, candidate_lag[-1] / 2.0, "right")))
     spreads = np.full(n_start, np.inf)
     allowed = np.full(n_start, np.inf)
     for i in range(n_start):
-        further = (lag[:n_local] >= lag[i]) & (lag[:n_local] <= 2.0 * lag[i] * (1 + 1e-9))
+        further = (candidate_lag >= candidate_lag[i]) & (
+            candidate_lag <= 2.0 * candidate_lag[i] * (1 + 1e-9)
+        )
         if not local[i] > 0:
             continue
         spreads[i] = float(np.max(np.abs(local[further] - local[i])) / local[i])
         allowed[i] = tolerance
-        # Standard error of each change of local slope, from its spread over trajectories.
-        changes = trajectory_local[:, further] - trajectory_local[:, [i]]
+        # Standard error of each change of local slope, from its spread over the rows.
+        changes = row_local[:, further] - row_local[:, [i]]
         counts = np.sum(np.isfinite(changes), axis=0)
         if np.all(counts > 1):
             change_se = np.nanstd(changes, axis=0, ddof=1) / np.sqrt(counts)
             allowed[i] = max(tolerance, 2.0 * float(np.max(change_se)) / local[i])
     flat = np.flatnonzero(spreads <= allowed)
-    chosen = int(flat[0]) if flat.size else int(np.argmin(spreads / allowed))
+    chosen_candidate = int(flat[0]) if flat.size else int(np.argmin(spreads / allowed))
+    chosen = int(candidates[chosen_candidate])
     inside = (lag >= lag[chosen]) & (lag <= window_ratio * lag[chosen] * (1 + 1e-9))
     slope, intercept = _line_fit(lag[inside], values[inside])
     return DispersionFit(
@@ -910,7 +971,7 @@ def fit_dispersion_coefficient(
         window_start=float(lag[inside][0]),
         window_end=float(lag[inside][-1]),
         window_is_flat=bool(flat.size),
-        slope_spread=float(spreads[chosen]),
+        slope_spread=float(spreads[chosen_candidate]),
         drift_velocity=msd.drift_velocity,
     )
 
@@ -926,9 +987,9 @@ def axial_dispersion(
     """Axial dispersion coefficient of one trajectory from its mean-square displacement.
 
     Combines :func:`mean_square_displacement` and :func:`fit_dispersion_coefficient`. A
-    single short trajectory gives a noisy MSD in which the end of the short-time regime is
-    hard to locate; for an ensemble, choose the window on the pooled MSD and pass it here
-    (as :func:`analyse_trajectories` does).
+    single short trajectory gives a noisy MSD in which the end of the short-time regime
+    cannot be located well; for an ensemble, choose the window on the pooled MSD and pass
+    it here (as :func:`analyse_trajectories` does).
 
     **Arguments:**
 
@@ -942,12 +1003,18 @@ def axial_dispersion(
 
     A :class:`DispersionFit`, D_z in m²/s.
     """
-    msd = mean_square_displacement(
-        trajectory,
-        drift_velocity=drift_velocity,
-        min_independent_displacements=min_independent_displacements,
+    if window is None:
+        msd = mean_square_displacement(
+            trajectory,
+            drift_velocity=drift_velocity,
+            min_independent_displacements=min_independent_displacements,
+        )
+        return fit_dispersion_coefficient(msd, tolerance=tolerance)
+    msd = _pooled_msd(
+        [trajectory], drift_velocity, min_independent_displacements, float(window[1]),
+        min_lags=1,
     )
-    return fit_dispersion_coefficient(msd, tolerance=tolerance, window=window)
+    return fit_dispersion_coefficient(msd, window=window)
 
 
 def pooled_axial_dispersion(
@@ -1019,8 +1086,11 @@ class TrajectorySummary:
     - `mean_zone_residence_times`: mean time in each zone, s.
     - `mean_axial_velocity`: pooled ``Σ (z_exit - z_entry) / Σ T``, m/s (``L`` over the
       mean residence time when every trajectory runs from inlet to outlet).
-    - `mean_dispersion_coefficient`: mean of the per-trajectory D_z, m²/s.
+    - `mean_dispersion_coefficient`: mean of the per-trajectory D_z, m²/s, over the
+      trajectories long enough to reach the fitting window.
     - `dispersion_standard_error`: standard error of that mean, m²/s.
+    - `n_dispersion_fits`: number of trajectories in that mean (the others are too short
+      for the window; their D_z and Pe are NaN).
     - `pooled_dispersion`: the :class:`DispersionFit` of the pooled MSD.
     - `peclet`: ``v L / D_z`` from the pooled velocity and pooled D_z.
     - `mean_path_length`: mean path length, m.
@@ -1034,6 +1104,7 @@ class TrajectorySummary:
     mean_axial_velocity: float
     mean_dispersion_coefficient: float
     dispersion_standard_error: float
+    n_dispersion_fits: int
     pooled_dispersion: DispersionFit
     peclet: float
     mean_path_length: float
@@ -1049,7 +1120,8 @@ class TrajectorySummary:
             f"mean zone residence times     [{zones}] s",
             f"mean axial velocity           {self.mean_axial_velocity * 1e3:.3f} mm/s",
             f"D_z, mean of trajectories     {self.mean_dispersion_coefficient * 1e6:.2f} "
-            f"± {self.dispersion_standard_error * 1e6:.2f} mm²/s",
+            f"± {self.dispersion_standard_error * 1e6:.2f} mm²/s "
+            f"({self.n_dispersion_fits} trajectories long enough for the window)",
             f"D_z, pooled MSD               {pooled.dispersion_coefficient * 1e6:.2f} mm²/s "
             f"(window {pooled.window_start:.3f}-{pooled.window_end:.3f} s, "
             f"{'flat' if pooled.window_is_flat else 'NOT flat'})",
@@ -1057,6 +1129,17 @@ class TrajectorySummary:
             f"mean path length              {self.mean_path_length:.4f} m",
         ]
         return "\n".join(lines)
+
+
+def _reaches_window(
+    trajectory: Trajectory, window: tuple[float, float], min_independent_displacements: int
+) -> bool:
+    """Whether a trajectory's MSD has at least two lags inside a given fitting window."""
+    step = _median_step([trajectory])
+    largest = min(trajectory.duration / min_independent_displacements, float(window[1]))
+    first = math.ceil(float(window[0]) / step - 1e-9)
+    last = math.floor(largest / step + 1e-9)
+    return last - max(first, 1) + 1 >= 2
 
 
 def analyse_trajectory(
@@ -1084,12 +1167,22 @@ def analyse_trajectory(
     A :class:`TrajectoryAnalysis` (SI units).
     """
     length = _check_positive("blender_length", blender_length)
-    dispersion = axial_dispersion(
-        trajectory,
-        min_independent_displacements=min_independent_displacements,
-        tolerance=tolerance,
-        window=window,
-    )
+    if window is not None and not _reaches_window(
+        trajectory, window, min_independent_displacements
+    ):
+        dispersion = DispersionFit(
+            dispersion_coefficient=float("nan"), intercept=float("nan"),
+            window_start=float(window[0]), window_end=float(window[1]),
+            window_is_flat=False, slope_spread=float("nan"),
+            drift_velocity=float(trajectory.z[-1] - trajectory.z[0]) / trajectory.duration,
+        )
+    else:
+        dispersion = axial_dispersion(
+            trajectory,
+            min_independent_displacements=min_independent_displacements,
+            tolerance=tolerance,
+            window=window,
+        )
     velocity = float(trajectory.z[-1] - trajectory.z[0]) / trajectory.duration
     return TrajectoryAnalysis(
         trajectory_id=trajectory.trajectory_id,
@@ -1115,7 +1208,9 @@ def analyse_trajectories(
 
     The MSD fitting window is chosen once, on the MSD pooled over all trajectories (where
     the end of the short-time regime can be located precisely), and every trajectory's D_z
-    is fitted on that same window.
+    is fitted on that same window; a trajectory whose own largest lag
+    (``T / min_independent_displacements``) does not reach two lags of the window gets a
+    NaN D_z and Pe and is left out of the mean.
 
     **Arguments:**
 
@@ -1145,8 +1240,10 @@ def analyse_trajectories(
     )
     times = np.array([a.residence_time for a in analyses])
     coefficients = np.array([a.dispersion.dispersion_coefficient for a in analyses])
+    coefficients = coefficients[np.isfinite(coefficients)]
     velocity = float(sum(tr.z[-1] - tr.z[0] for tr in trajectories) / times.sum())
     n = len(analyses)
+    n_fits = coefficients.size
     return TrajectorySummary(
         analyses=analyses,
         blender_length=float(blender_length),
@@ -1154,9 +1251,10 @@ def analyse_trajectories(
         residence_time_std=float(times.std(ddof=1)) if n > 1 else 0.0,
         mean_zone_residence_times=np.mean([a.zone_residence_times for a in analyses], axis=0),
         mean_axial_velocity=velocity,
-        mean_dispersion_coefficient=float(coefficients.mean()),
-        dispersion_standard_error=float(coefficients.std(ddof=1) / math.sqrt(n)) if n > 1
-        else float("nan"),
+        mean_dispersion_coefficient=float(coefficients.mean()) if n_fits else float("nan"),
+        dispersion_standard_error=float(coefficients.std(ddof=1) / math.sqrt(n_fits))
+        if n_fits > 1 else float("nan"),
+        n_dispersion_fits=n_fits,
         pooled_dispersion=pooled,
         peclet=peclet_number(velocity, blender_length, pooled.dispersion_coefficient),
         mean_path_length=float(np.mean([a.path_length for a in analyses])),
@@ -1272,42 +1370,53 @@ def synthetic_trajectories(
         cov_ux = variance * tau * (1 - decay) ** 2
         chol = np.linalg.cholesky(np.array([[var_u, cov_ux], [cov_ux, var_x]]) + 1e-300)
         u = rng.normal(0.0, math.sqrt(variance), n)
-    if boundary == "reflecting":
-        z = rng.uniform(0.0, length, n)
-    else:
-        z = np.zeros(n)
-    positions = [z.copy()]
-    active = np.ones(n, dtype=bool)
     exit_step = np.full(n, max_steps)
-    for k in range(1, max_steps + 1):
-        dz = velocity * step + brownian_std * rng.standard_normal(n)
+    if boundary == "free":
+        # No walls: all increments at once; the OU velocity is a first-order linear filter.
+        dz = velocity * step + brownian_std * rng.standard_normal((max_steps, n))
         if ballistic_fraction > 0:
-            xi = chol @ rng.standard_normal((2, n))
-            dz += tau * (1 - decay) * u + xi[1]
-            u = decay * u + xi[0]
-        z = z + dz
-        if boundary == "entry_exit":
-            mirrored = z < 0
-            z = np.abs(z)
-            exited = active & (z >= length)
-            exit_step[exited] = k
-            active &= ~exited
-        elif boundary == "reflecting":
-            z = np.mod(z, 2 * length)
-            mirrored = z > length
-            z = np.where(mirrored, 2 * length - z, z)
-        if boundary != "free" and ballistic_fraction > 0:
-            # A particle bouncing off an end wall reverses its correlated velocity too.
-            u = np.where(mirrored, -u, u)
-        positions.append(z.copy())
-        if boundary == "entry_exit" and not active.any():
-            break
-    axial = np.array(positions)
-    if boundary == "entry_exit" and active.any():
-        raise ValueError(
-            f"{int(active.sum())} particle(s) did not reach the outlet within "
-            f"{max_steps * step:g} s; check axial_velocity and dispersion_coefficient."
-        )
+            xi = np.einsum("ij,sjn->sin", chol, rng.standard_normal((max_steps, 2, n)))
+            u_next = lfilter([1.0], [1.0, -decay], xi[:, 0], axis=0, zi=decay * u[None, :])[0]
+            u_start = np.concatenate([u[None, :], u_next[:-1]])
+            dz += tau * (1 - decay) * u_start + xi[:, 1]
+        axial = np.concatenate([np.zeros((1, n)), np.cumsum(dz, axis=0)])
+    else:
+        z = rng.uniform(0.0, length, n) if boundary == "reflecting" else np.zeros(n)
+        positions = [z.copy()]
+        active = np.ones(n, dtype=bool)
+        chunk = 1024
+        for k in range(1, max_steps + 1):
+            if (k - 1) % chunk == 0:
+                brownian = brownian_std * rng.standard_normal((chunk, n))
+                if ballistic_fraction > 0:
+                    xi = np.einsum("ij,sjn->sin", chol, rng.standard_normal((chunk, 2, n)))
+            dz = velocity * step + brownian[(k - 1) % chunk]
+            if ballistic_fraction > 0:
+                dz += tau * (1 - decay) * u + xi[(k - 1) % chunk, 1]
+                u = decay * u + xi[(k - 1) % chunk, 0]
+            z = z + dz
+            if boundary == "entry_exit":
+                mirrored = z < 0
+                z = np.abs(z)
+                exited = active & (z >= length)
+                exit_step[exited] = k
+                active &= ~exited
+            else:
+                z = np.mod(z, 2 * length)
+                mirrored = z > length
+                z = np.where(mirrored, 2 * length - z, z)
+            if ballistic_fraction > 0:
+                # A particle bouncing off an end wall reverses its correlated velocity too.
+                u = np.where(mirrored, -u, u)
+            positions.append(z.copy())
+            if boundary == "entry_exit" and not active.any():
+                break
+        axial = np.array(positions)
+        if boundary == "entry_exit" and active.any():
+            raise ValueError(
+                f"{int(active.sum())} particle(s) did not reach the outlet within "
+                f"{max_steps * step:g} s; check axial_velocity and dispersion_coefficient."
+            )
 
     angular_speed = angular_speed_ratio * 2.0 * math.pi * impeller_speed_rpm / 60.0
     trajectories = []

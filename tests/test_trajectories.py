@@ -97,9 +97,7 @@ def test_window_selection_skips_short_time_ballistic_regime(case):
     # Independent prediction of the naive estimate: least-squares slope of the exact MSD
     # 2 D t - 2 f D tau_b (1 - exp(-t/tau_b)) over the same first four lags.
     lags = PEPT_TIME_STEP * np.arange(1, 5)
-    exact_msd = 2 * dispersion * lags - 2 * ballistic_fraction * dispersion * ballistic_time * (
-        1 - np.exp(-lags / ballistic_time)
-    )
+    exact_msd = _ballistic_msd(lags, dispersion, ballistic_fraction, ballistic_time)
     predicted_naive = np.polyfit(lags, exact_msd, 1)[0] / 2
     error = summary.mean_dispersion_coefficient / dispersion - 1
     print(
@@ -114,6 +112,46 @@ def test_window_selection_skips_short_time_ballistic_regime(case):
     assert abs(error) < 0.05
     assert naive / dispersion - 1 < -0.10
     assert naive == pytest.approx(predicted_naive, rel=0.03)
+
+
+def _ballistic_msd(lags, dispersion, ballistic_fraction, ballistic_time):
+    """Exact MSD of Brownian motion plus an integrated Ornstein-Uhlenbeck velocity."""
+    return 2 * dispersion * lags - 2 * ballistic_fraction * dispersion * ballistic_time * (
+        1 - np.exp(-lags / ballistic_time)
+    )
+
+
+def test_synthetic_ballistic_motion_has_exact_mean_square_displacement():
+    dispersion, ballistic_fraction, ballistic_time = 5e-5, 0.3, 0.05
+    trajectories = synthetic_trajectories(
+        100, axial_velocity=0.01, dispersion_coefficient=dispersion, boundary="free",
+        duration=80.0, ballistic_fraction=ballistic_fraction, ballistic_time=ballistic_time,
+        seed=12,
+    )
+    msd = pooled_mean_square_displacement(trajectories)
+    exact = _ballistic_msd(msd.lag_time, dispersion, ballistic_fraction, ballistic_time)
+    # About 470,000 samples: the relative statistical error is about sqrt(4k / 3N) at lag k,
+    # 0.2 % at the first lag and 0.7 % at lag 16.
+    np.testing.assert_allclose(msd.msd[:16], exact[:16], rtol=0.02)
+    assert msd.msd[0] / exact[0] == pytest.approx(1.0, abs=0.01)
+
+
+def test_single_long_trajectory_window_skips_ballistic_regime():
+    dispersion, ballistic_time = 5e-5, 0.05
+    (trajectory,) = synthetic_trajectories(
+        1, axial_velocity=0.01, dispersion_coefficient=dispersion, boundary="free",
+        duration=TRACKED_TIME, ballistic_fraction=0.3, ballistic_time=ballistic_time,
+        position_noise=MEASUREMENT_NOISE, seed=13,
+    )
+    fit = axial_dispersion(trajectory)
+    print(
+        f"single {TRACKED_TIME:.0f} s trajectory: D_z error "
+        f"{fit.dispersion_coefficient / dispersion - 1:+.4f}, window "
+        f"{fit.window_start:.4f}-{fit.window_end:.4f} s"
+    )
+    assert fit.window_is_flat
+    assert fit.window_start > ballistic_time
+    assert fit.dispersion_coefficient == pytest.approx(dispersion, rel=0.05)
 
 
 def test_mean_square_displacement_matches_direct_sum_with_bridge_correction():
@@ -187,6 +225,26 @@ def test_zone_residence_times_sum_to_residence_time():
         / summary.pooled_dispersion.dispersion_coefficient
     )
     assert "Peclet" in summary.report()
+
+
+def test_trajectory_too_short_for_pooled_window_is_left_out_of_mean_dispersion():
+    long_trajectories = synthetic_trajectories(
+        20, axial_velocity=0.01, dispersion_coefficient=5e-5, boundary="free", duration=30.0,
+        ballistic_fraction=0.3, ballistic_time=0.05, seed=14,
+    )
+    short = Trajectory(
+        time=PEPT_TIME_STEP * np.arange(30), x=np.zeros(30), y=np.zeros(30),
+        z=0.001 * np.arange(30), trajectory_id="short",
+    )
+    summary = analyse_trajectories([*long_trajectories, short], BLENDER_LENGTH)
+    # The short trajectory's largest lag, T/10 = 0.049 s, lies below the window start.
+    assert summary.pooled_dispersion.window_start > short.duration / 10
+    assert math.isnan(summary.analyses[-1].dispersion.dispersion_coefficient)
+    assert math.isnan(summary.analyses[-1].peclet)
+    assert summary.n_dispersion_fits == 20
+    fitted = [a.dispersion.dispersion_coefficient for a in summary.analyses[:-1]]
+    assert summary.mean_dispersion_coefficient == pytest.approx(np.mean(fitted))
+    assert summary.analyses[-1].residence_time == pytest.approx(29 * PEPT_TIME_STEP)
 
 
 def test_entry_exit_mean_residence_time_matches_first_passage_formula():
