@@ -247,6 +247,28 @@ def test_trajectory_too_short_for_pooled_window_is_left_out_of_mean_dispersion()
     assert summary.analyses[-1].residence_time == pytest.approx(29 * PEPT_TIME_STEP)
 
 
+def test_reflecting_motion_spends_zone_times_of_exponential_stationary_profile():
+    peclet, dispersion = 2.0, 2e-3
+    trajectories = synthetic_trajectories(
+        40, axial_velocity=peclet * dispersion / BLENDER_LENGTH,
+        dispersion_coefficient=dispersion, boundary="reflecting", duration=550.0, seed=15,
+    )
+    # Drop the first 50 s (about ten relaxation times L²/(π² D)) of the uniform start.
+    k = int(50.0 / PEPT_TIME_STEP)
+    settled = [
+        Trajectory(time=tr.time[k:], x=tr.x[k:], y=tr.y[k:], z=tr.z[k:]) for tr in trajectories
+    ]
+    assert all(np.all((tr.z >= 0) & (tr.z <= BLENDER_LENGTH)) for tr in trajectories)
+    fractions = np.array(
+        [zone_residence_times(tr, BLENDER_LENGTH) / tr.duration for tr in settled]
+    )
+    # Stationary density of drift-diffusion between reflecting walls: ∝ exp(Pe z / L).
+    edges = np.linspace(0.0, 1.0, 6)
+    expected = np.diff(np.exp(peclet * edges)) / (math.exp(peclet) - 1)
+    standard_error = fractions.std(axis=0, ddof=1) / math.sqrt(len(settled))
+    assert np.all(np.abs(fractions.mean(axis=0) - expected) < 4 * standard_error)
+
+
 def test_entry_exit_mean_residence_time_matches_first_passage_formula():
     velocity, peclet = BLENDER_LENGTH / 7.0, 8.0
     dispersion = velocity * BLENDER_LENGTH / peclet
