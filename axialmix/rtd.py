@@ -28,6 +28,8 @@ import numpy as np
 from jax import Array
 from jax.typing import ArrayLike
 
+from axialmix._validation import concrete_value, require_finite, require_increasing_times
+
 __all__ = [
     "RTD",
     "convolve",
@@ -45,31 +47,24 @@ _UNIFORM_GRID_RTOL = 1e-6
 
 def _is_concrete(*values: object) -> bool:
     """True when no value is a JAX tracer, so it is safe to inspect it in Python."""
-    return not any(isinstance(v, jax.core.Tracer) for v in values)
+    return all(concrete_value(v) is not None for v in values)
 
 
 def _check_curve(time: ArrayLike, values: ArrayLike, name: str) -> None:
     """Raise a one-line ValueError for a malformed sampled curve (concrete inputs only)."""
+    require_increasing_times("time", time)
+    require_finite(name, values)
     if not _is_concrete(time, values):
         return
-    time_np = np.asarray(time)
-    values_np = np.asarray(values)
-    if time_np.ndim != 1:
-        raise ValueError(f"time must be one-dimensional, got shape {time_np.shape}")
-    if values_np.shape[-1:] != time_np.shape:
-        raise ValueError(
-            f"{name} has {values_np.shape[-1:]} samples on its last axis but time has "
-            f"{time_np.shape[0]}"
-        )
-    if time_np.shape[0] < 2:
+    time_shape, values_shape = np.shape(time), np.shape(values)
+    if len(time_shape) != 1:
+        raise ValueError(f"time must be a one-dimensional array, got shape {time_shape}")
+    if time_shape[0] < 2:
         raise ValueError("time needs at least two samples")
-    if not np.all(np.isfinite(time_np)):
-        raise ValueError("time contains NaN or infinite values")
-    if not np.all(np.diff(time_np) > 0):
-        index = int(np.argmin(np.diff(time_np) > 0)) + 1
-        raise ValueError(f"time must be strictly increasing (sample {index} is not)")
-    if not np.all(np.isfinite(values_np)):
-        raise ValueError(f"{name} contains NaN or infinite values")
+    if values_shape[-1:] != time_shape:
+        raise ValueError(
+            f"{name} has {values_shape[-1:]} samples on its last axis but time has {time_shape[0]}"
+        )
 
 
 def _check_uniform(time: ArrayLike) -> None:

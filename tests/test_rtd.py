@@ -192,7 +192,7 @@ def test_moments_vmap_over_a_batch_of_curves():
     ("time", "curve", "message"),
     [
         ([0.0, 1.0, 1.0, 2.0], [0.0, 1.0, 1.0, 0.0], "strictly increasing"),
-        ([0.0, 1.0, 2.0], [0.0, np.nan, 0.0], "exit_age contains NaN"),
+        ([0.0, 1.0, 2.0], [0.0, np.nan, 0.0], "exit_age must not be NaN"),
         ([0.0, 1.0, 2.0], [0.0, 1.0], "samples"),
     ],
 )
