@@ -196,7 +196,8 @@ def read_trajectories(
     The file has a header row naming the columns ``t, x, y, z`` and optionally a trajectory
     id column; header spellings such as ``time``, ``T``, ``x (mm)``, ``x [mm]``, ``x_mm``,
     ``z/m``, ``trajectory_id``, ``track``, ``particle`` are recognised (case-insensitive) and
-    extra columns are ignored. Cells are separated by commas, semicolons or tabs; blank
+    extra columns are ignored. Cells are separated by commas, semicolons or tabs (or by
+    spaces when the header has none of these; header names then have no spaces); blank
     lines and lines starting with ``#`` are skipped. Without an id column the whole file is
     one trajectory named after the file. Rows of one trajectory need not be contiguous but
     must have strictly increasing times. Errors are one-line ``ValueError`` messages naming
@@ -211,13 +212,15 @@ def read_trajectories(
       unit that contradicts the header is an error.
     - `time_unit`: unit of t in the file, ``"s"`` or ``"ms"``; ``None`` as for lengths,
       default seconds.
-    - `min_points`: fewest samples accepted per trajectory.
+    - `min_points`: fewest samples accepted per trajectory (at least 2).
 
     **Returns:**
 
     The trajectories in order of first appearance, times in s and positions in m.
     """
     path = Path(path)
+    if int(min_points) != min_points or min_points < 2:
+        raise ValueError(f"min_points must be an integer of at least 2, got {min_points!r}.")
     try:
         text = path.read_text(encoding="utf-8-sig")
     except OSError as error:
@@ -231,12 +234,13 @@ def read_trajectories(
         raise ValueError(f"{path}: the file is empty (a header row t, x, y, z is needed).")
     header_row, header_line = numbered[0]
     delimiter = max([",", ";", "\t"], key=header_line.count)
-    if header_line.count(delimiter) == 0:
-        raise ValueError(
-            f"{path}: row {header_row}: the header has one cell; columns t, x, y, z "
-            "separated by commas, semicolons or tabs are needed."
-        )
-    header = next(csv.reader([header_line], delimiter=delimiter))
+
+    def split_cells(line: str) -> list[str]:
+        if header_line.count(delimiter) == 0:
+            return line.split()
+        return next(csv.reader([line], delimiter=delimiter))
+
+    header = split_cells(header_line)
     parsed = [_parse_header_cell(cell) for cell in header]
 
     columns: dict[str, int] = {}
@@ -270,7 +274,7 @@ def read_trajectories(
     records: dict[str, list[tuple[int, float, float, float, float]]] = {}
     default_id = path.stem
     for row, line in numbered[1:]:
-        cells = next(csv.reader([line], delimiter=delimiter))
+        cells = split_cells(line)
         if len(cells) < len(header):
             raise ValueError(
                 f"{path}: row {row}: expected {len(header)} cells, found {len(cells)}."

@@ -376,6 +376,9 @@ def test_read_trajectories_groups_ids_and_converts_millimetres(tmp_path):
     (metres,) = read_trajectories(plain)
     np.testing.assert_allclose(metres.z, [0.0, 5.0, 7.0])
 
+    spaced = _write(tmp_path, "T  X_mm  Y_mm  Z_mm\n0 0 0 0\n1 0 0 5\n2 0 0 7\n", "spaced.txt")
+    np.testing.assert_allclose(read_trajectories(spaced)[0].z, [0.0, 0.005, 0.007])
+
 
 @pytest.mark.parametrize(
     ("text", "row", "problem"),
