@@ -23,6 +23,14 @@ What is derived from a trajectory:
 :func:`synthetic_trajectories` generates trajectories with known ``v`` and ``D_z`` (spiral
 motion around the shaft, exact Gaussian axial increments, an optional short-time correlated
 "ballistic" axial velocity and measurement noise) against which the estimators are tested.
+
+Typical use::
+
+    from axialmix.trajectories import analyse_trajectories, read_trajectories
+
+    trajectories = read_trajectories("pept.csv", length_unit="mm")
+    summary = analyse_trajectories(trajectories, blender_length=0.31)
+    print(summary.report())
 """
 
 from __future__ import annotations
