@@ -247,9 +247,14 @@ class _IdentityEngine:
         n_species = counts.shape[1]
         self.offsets = np.zeros(network.n_compartments + 1, np.int64)
         self.offsets[1:] = np.cumsum(network.holdups)
-        species = np.repeat(np.tile(np.arange(n_species), network.n_compartments), counts.ravel())
-        numbers = np.arange(self.offsets[-1], dtype=np.int64)
-        self.slots = (numbers << _kernels.SPECIES_BITS) | species
+        # Build the slot codes in place: peak memory is the slots plus one byte per particle.
+        species = np.repeat(
+            np.tile(np.arange(n_species, dtype=np.int8), network.n_compartments), counts.ravel()
+        )
+        self.slots = np.arange(self.offsets[-1], dtype=np.int64)
+        np.left_shift(self.slots, _kernels.SPECIES_BITS, out=self.slots)
+        np.bitwise_or(self.slots, species, out=self.slots)
+        del species
         # [steps done, events in the buffer, next particle number]
         self.progress = np.array([0, 0, self.offsets[-1]], np.int64)
         block = max(_EVENT_BLOCK, 2 * (network.moves_per_step + network.throughput))
