@@ -40,7 +40,7 @@ _MAX_CELL_PECLET = 2.0
 
 
 def _check_arguments(t: ArrayLike, tau: float, peclet: float, n_cells: int, dt: float | None):
-    """Validate the arguments shared by the public solvers; return times as a numpy array."""
+    """Validate the arguments shared by the public solvers; return the times as an array."""
     time = np.asarray(t, dtype=float)
     if time.ndim != 1 or time.size == 0:
         raise ValueError(f"t must be a non-empty one-dimensional array, got shape {time.shape}")
@@ -104,11 +104,13 @@ def _solve_on_times(
     t: ArrayLike,
     tau: float,
     peclet: float,
-    n_cells: int,
+    n_cells: int | None,
     dt: float | None,
     pulse: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Run FiPy up to max(t) and return the requested times and the outlet values there."""
+    if n_cells is None and np.isfinite(peclet) and peclet > 0:
+        n_cells = max(200, math.ceil(peclet))
     time = _check_arguments(t, tau, peclet, n_cells, dt)
     dtheta = (dt if dt is not None else tau / 200.0) / tau
     n_steps = max(1, math.ceil(time.max() / tau / dtheta - 1e-9))
@@ -122,7 +124,7 @@ def exit_age_fipy(
     tau: float,
     peclet: float,
     *,
-    n_cells: int = 200,
+    n_cells: int | None = None,
     dt: float | None = None,
 ) -> np.ndarray:
     """Return the closed–closed ADM exit-age density E(t) computed with FiPy.
@@ -137,7 +139,8 @@ def exit_age_fipy(
     - `t`: times at which to report E, shape ``(times,)``, non-negative; any unit (say s).
     - `tau`: space time ``L / v``, positive, same unit as `t`.
     - `peclet`: Peclet number ``v L / D_z``, positive, dimensionless.
-    - `n_cells`: number of finite-volume cells; must exceed ``peclet / 2``.
+    - `n_cells`: number of finite-volume cells; must exceed ``peclet / 2``; default
+      ``max(200, ceil(peclet))`` (cell Peclet number at most one).
     - `dt`: time step in the unit of `t`; default ``tau / 200``.
 
     **Returns:**
@@ -153,7 +156,7 @@ def step_response_fipy(
     tau: float,
     peclet: float,
     *,
-    n_cells: int = 200,
+    n_cells: int | None = None,
     dt: float | None = None,
 ) -> np.ndarray:
     """Return the closed–closed ADM step response F(t) computed with FiPy.
@@ -166,7 +169,8 @@ def step_response_fipy(
     - `t`: times at which to report F, shape ``(times,)``, non-negative; any unit (say s).
     - `tau`: space time ``L / v``, positive, same unit as `t`.
     - `peclet`: Peclet number ``v L / D_z``, positive, dimensionless.
-    - `n_cells`: number of finite-volume cells; must exceed ``peclet / 2``.
+    - `n_cells`: number of finite-volume cells; must exceed ``peclet / 2``; default
+      ``max(200, ceil(peclet))`` (cell Peclet number at most one).
     - `dt`: time step in the unit of `t`; default ``tau / 200``.
 
     **Returns:**

@@ -9,7 +9,8 @@ theta in [0, 3] at 301 points by
                 ``jax.value_and_grad``; and a vmapped batch of 100 (tau, Pe) sets, reported
                 per curve;
 * ``rtdpy``     rtdpy.AD_cc (method of lines, scipy BDF) with nx = 200 and 400 nodes;
-* ``FiPy``      axialmix.reference.exit_age_fipy (backward Euler, central differences).
+* ``FiPy``      axialmix.reference.exit_age_fipy (backward Euler, central differences) with
+                its default max(200, Pe) cells and a step of 0.005 tau (0.01 with --quick).
 
 Errors are ``max |E - E_ref| / max E_ref`` against the extended-precision eigenfunction
 series (axialmix.analytic.highprecision, mpmath) computed here. rtdpy's grid is its own
@@ -23,6 +24,7 @@ Run: ``python benchmarks/adm.py`` (a few minutes on 2 cores), ``--quick`` for a 
 """
 
 import argparse
+import math
 import statistics
 import time
 from collections.abc import Callable
@@ -39,8 +41,7 @@ from axialmix.reference import exit_age_fipy
 PECLET_NUMBERS = (0.1, 1.0, 10.0, 100.0, 1000.0)
 THETA = np.linspace(0.0, 3.0, 301)
 BATCH_SIZE = 100
-FIPY_CELLS = 600  # cell Peclet number below 2 up to Pe = 1000; cost hardly depends on it
-FIPY_STEP = 0.002  # theta; 1500 backward-Euler steps per curve
+FIPY_STEP = 0.005  # theta: 600 backward-Euler steps per curve, several seconds each
 
 
 def timed(function: Callable[[], object], repeats: int) -> tuple[float, float]:
@@ -68,8 +69,9 @@ def peak_error(curve: np.ndarray, reference: np.ndarray) -> float:
 
 def benchmark_peclet(peclet: float, repeats: int, quick: bool) -> tuple[list[dict], dict]:
     """Rows of the accuracy/speed table and the promised ratios for one Peclet number."""
-    from axialmix.adm import exit_age
     from rtdpy import AD_cc
+
+    from axialmix.adm import exit_age
 
     rows = []
     theta = jnp.asarray(THETA)
@@ -139,12 +141,13 @@ def benchmark_peclet(peclet: float, repeats: int, quick: bool) -> tuple[list[dic
         rtdpy_seconds[nx] = run_s
 
     fipy_step = 0.01 if quick else FIPY_STEP
+    fipy_cells = max(200, math.ceil(peclet))  # exit_age_fipy's default: cell Pe <= 1
     start = time.perf_counter()
-    fipy_curve = exit_age_fipy(THETA, 1.0, peclet, n_cells=FIPY_CELLS, dt=fipy_step)
+    fipy_curve = exit_age_fipy(THETA, 1.0, peclet, n_cells=fipy_cells, dt=fipy_step)
     fipy_s = time.perf_counter() - start
     rows.append(
         dict(
-            method=f"FiPy n={FIPY_CELLS} dθ={fipy_step:g}",
+            method=f"FiPy n={fipy_cells} dθ={fipy_step:g}",
             error=peak_error(fipy_curve, reference),
             seconds=fipy_s,
             compile=None,
