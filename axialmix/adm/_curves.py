@@ -1,0 +1,184 @@
+"""Outlet curves of the dimensionless ADM at the solver's time nodes, and their interpolation."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from axialmix.adm._config import SolverConfig, default_configs, peclet_level_bounds
+from axialmix.adm._solver import grid_operator, propagate
+
+__all__ = ["dimensionless_curves", "node_curves"]
+
+_TINY = 1e-300
+
+
+def _grid_weights(config: SolverConfig) -> tuple[float, ...]:
+    """Weights of the grid solutions: Richardson ``(4 E_2N - E_N) / 3`` or the single grid."""
+    return (-1.0 / 3.0, 4.0 / 3.0) if config.richardson else (1.0,)
+
+
+def _initial_state(config: SolverConfig, inlet: str) -> jax.Array:
+    """Initial state of the stacked grids: pulse ``e_1 / h`` or step deviation ``-1``."""
+    parts = []
+    for cells in config.grids:
+        if inlet == "pulse":
+            parts.append(jnp.zeros(cells).at[0].set(float(cells)))
+        else:
+            parts.append(-jnp.ones(cells))
+    return jnp.concatenate(parts)[:, None]
+
+
+def node_curves(config: SolverConfig, inlet: str, peclet: jax.Array):
+    """Outlet value and its theta-derivative at the time nodes of `config`.
+
+    **Arguments:**
+
+    - `config`: the solver settings (static).
+    - `inlet`: ``"pulse"`` (exit age E) or ``"step"`` (cumulative F).
+    - `peclet`: the Peclet number (scalar).
+
+    **Returns:**
+
+    ``(values, slopes)`` at ``config.time_nodes()``: E and dE/dtheta, or F and dF/dtheta.
+    """
+    lower, diagonal, upper = grid_operator(config.grids, peclet)
+    weights = _grid_weights(config)
+    ends = np.cumsum(config.grids) - 1  # index of each grid's outlet cell
+    upwind = [(0.5 + cells / peclet) * cells for cells in config.grids]
+
+    def observe(state):
+        value = sum(w * state[end, 0] for w, end in zip(weights, ends, strict=True))
+        slope = sum(
+            w * a * (state[end - 1, 0] - state[end, 0])
+            for w, a, end in zip(weights, upwind, ends, strict=True)
+        )
+        return value, slope
+
+    nodes = config.time_nodes()
+    values, slopes = propagate(
+        lower, diagonal, upper, _initial_state(config, inlet), np.diff(nodes), observe
+    )
+    if inlet == "step":
+        values = values + 1.0
+    return values, slopes
+
+
+def _locate(nodes: np.ndarray, theta: jax.Array):
+    """Interval index, its width and the local coordinate in [0, 1] of each theta."""
+    index = jnp.clip(jnp.searchsorted(nodes, theta, side="right") - 1, 0, len(nodes) - 2)
+    left = jnp.asarray(nodes)[index]
+    width = jnp.asarray(np.diff(nodes))[index]
+    local = jnp.clip((theta - left) / width, 0.0, 1.0)
+    return index, width, local
+
+
+def _hermite(nodes, values, slopes, theta):
+    """Cubic Hermite interpolation of (values, slopes) given at `nodes`."""
+    index, width, s = _locate(nodes, theta)
+    y0, y1 = values[index], values[index + 1]
+    m0, m1 = slopes[index] * width, slopes[index + 1] * width
+    return (
+        (1 + 2 * s) * (1 - s) ** 2 * y0
+        + s * (1 - s) ** 2 * m0
+        + s**2 * (3 - 2 * s) * y1
+        + s**2 * (s - 1) * m1
+    )
+
+
+def _hermite_integral(nodes, values, slopes, theta):
+    """Integral from 0 to theta of the cubic Hermite interpolant."""
+    widths = jnp.asarray(np.diff(nodes))
+    pieces = widths * (values[:-1] + values[1:]) / 2 + widths**2 * (slopes[:-1] - slopes[1:]) / 12
+    cumulative = jnp.concatenate([jnp.zeros(1), jnp.cumsum(pieces)])
+    index, width, s = _locate(nodes, theta)
+    y0, y1 = values[index], values[index + 1]
+    m0, m1 = slopes[index] * width, slopes[index + 1] * width
+    partial = width * (
+        (s - s**3 + s**4 / 2) * y0
+        + (s**2 / 2 - 2 * s**3 / 3 + s**4 / 4) * m0
+        + (s**3 - s**4 / 2) * y1
+        + (s**4 / 4 - s**3 / 3) * m1
+    )
+    return cumulative[index] + partial
+
+
+def _decay_rate(amount, rate_of_loss):
+    """``rate_of_loss / amount`` where both are positive, else 0 (and a validity mask)."""
+    valid = (amount > _TINY) & (rate_of_loss > 0)
+    return jnp.where(valid, rate_of_loss / jnp.where(valid, amount, 1.0), 0.0), valid
+
+
+def _safe_exprel_integral(rate, span):
+    """``(1 - exp(-rate span)) / rate``, equal to ``span`` at rate 0."""
+    small = rate * span < 1e-8
+    safe_rate = jnp.where(small, 1.0, rate)
+    return jnp.where(small, span, -jnp.expm1(-safe_rate * span) / safe_rate)
+
+
+def _evaluate(config: SolverConfig, kinds: tuple[str, ...], thetas, peclet: jax.Array):
+    """The dimensionless curves `kinds` (exit_age, step, ramp) at `thetas` for one config."""
+    nodes = config.time_nodes()
+    horizon = float(nodes[-1])
+    solved = {}
+    results = []
+    for kind, theta in zip(kinds, thetas, strict=True):
+        inlet = "pulse" if kind == "exit_age" else "step"
+        if inlet not in solved:
+            solved[inlet] = node_curves(config, inlet, peclet)
+        values, slopes = solved[inlet]
+        inside = jnp.clip(theta, 0.0, horizon)
+        beyond = jnp.maximum(theta - horizon, 0.0)
+        last, last_slope = values[-1], slopes[-1]
+        if kind == "exit_age":
+            # After the horizon the slowest mode is left: E decays exponentially at its rate.
+            rate, valid = _decay_rate(last, -last_slope)
+            tail = jnp.where(valid, last * jnp.exp(-rate * beyond), 0.0)
+            curve = jnp.where(theta > horizon, tail, _hermite(nodes, values, slopes, inside))
+        elif kind == "step":
+            remaining = 1.0 - last  # 1 - F at the horizon, decaying like E
+            rate, valid = _decay_rate(remaining, last_slope)
+            tail = 1.0 - jnp.where(valid, remaining * jnp.exp(-rate * beyond), 0.0)
+            curve = jnp.where(theta > horizon, tail, _hermite(nodes, values, slopes, inside))
+        else:
+            remaining = 1.0 - last
+            rate, valid = _decay_rate(remaining, last_slope)
+            total = _hermite_integral(nodes, values, slopes, inside)
+            lagging = jnp.where(valid, remaining, 0.0) * _safe_exprel_integral(rate, beyond)
+            curve = total + beyond - lagging
+        results.append(jnp.where(theta > 0, curve, 0.0))
+    return tuple(results)
+
+
+def dimensionless_curves(
+    kinds: tuple[str, ...], thetas: tuple[jax.Array, ...], peclet: jax.Array, config
+) -> tuple[jax.Array, ...]:
+    """Dimensionless exit age, step response or ramp response curves at given theta.
+
+    With an explicit `config` that config is used. Otherwise a concrete `peclet` selects its
+    default resolution level in Python, and a traced one selects it at run time with
+    ``lax.switch`` (under ``vmap`` every level is then evaluated).
+
+    **Arguments:**
+
+    - `kinds`: each ``"exit_age"`` (tau E), ``"step"`` (F) or ``"ramp"`` (integral of F).
+    - `thetas`: for each kind, the dimensionless times ``t / tau`` (arrays).
+    - `peclet`: the Peclet number (scalar, possibly traced).
+    - `config`: the solver settings, or None for the defaults.
+
+    **Returns:**
+
+    The curves, each of the shape of its theta.
+    """
+    thetas = tuple(thetas)
+    if config is not None:
+        return _evaluate(config, kinds, thetas, peclet)
+    bounds = peclet_level_bounds()
+    configs = default_configs()
+    if not isinstance(peclet, jax.core.Tracer):
+        index = int(np.searchsorted(bounds, float(peclet), side="left"))
+        return _evaluate(configs[index], kinds, thetas, peclet)
+    index = jnp.searchsorted(jnp.asarray(bounds), peclet, side="left")
+    branches = [(lambda th, pe, c=c: _evaluate(c, kinds, th, pe)) for c in configs]
+    return jax.lax.switch(index, branches, thetas, peclet)
