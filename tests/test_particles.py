@@ -365,3 +365,46 @@ def test_particle_network_rejects_inconsistent_descriptions():
         particles.simulate(network, initial + 1, 10)
     with pytest.raises(ValueError, match="engine"):
         particles.simulate(network, initial, 10, engine="fast")
+
+
+def test_identity_engine_generator_matches_reference_xoshiro256starstar():
+    from axialmix.particles._random import uniform_many, xoshiro_state
+
+    mask = (1 << 64) - 1
+    state = [int(w) for w in xoshiro_state(2024)]
+
+    def rotl(x, k):
+        return ((x << k) | (x >> (64 - k))) & mask
+
+    expected = []
+    for _ in range(1000):  # reference algorithm from Blackman and Vigna (2018), in Python
+        result = rotl((state[1] * 5) & mask, 7) * 9 & mask
+        t = (state[1] << 17) & mask
+        state[2] ^= state[0]
+        state[3] ^= state[1]
+        state[1] ^= state[2]
+        state[0] ^= state[3]
+        state[2] ^= t
+        state[3] = rotl(state[3], 45)
+        expected.append((result >> 11) * 2.0**-53)
+    got = uniform_many(xoshiro_state(2024), 1000)
+    assert np.array_equal(got, np.array(expected))
+    assert stats.kstest(uniform_many(xoshiro_state(5), 100_000), "uniform").pvalue > 1e-3
+
+
+def test_constant_feed_is_exact_and_feeder_feed_follows_feeder_rates():
+    network = particles.axial_radial_grid(4, 3)  # 3 inlets, 1 particle each per step
+    feed = particles.constant_feed(network, [0.7, 0.3], 1000)
+    assert feed.shape == (1000, 3, 2) and np.all(feed.sum(axis=2) == 1)
+    assert np.all(np.abs(feed.sum(axis=0)[:, 1] - 300) <= 1)  # running share within 1 particle
+    fluctuating = particles.feeder_feed(network, [12.16, 6.55], [2.46, 1.16], 20_000, seed=3)
+    assert np.all(fluctuating.sum(axis=2) == 1)
+    share = fluctuating[:, :, 1].mean()
+    # E[6.55 / (12.16 + 6.55)] for independent normal rates, by simulation of the rates only
+    rng = np.random.default_rng(0)
+    rates = np.maximum(rng.normal([12.16, 6.55], [2.46, 1.16], (200_000, 2)), 0)
+    # The per-step fraction has a standard deviation of about 0.06: 3 standard errors of
+    # the two means (20,000 and 200,000 draws) come to about 0.0014.
+    assert share == pytest.approx(np.mean(rates[:, 1] / rates.sum(axis=1)), abs=0.0015)
+    with pytest.raises(ValueError, match="sum to 1"):
+        particles.constant_feed(network, [0.7, 0.4], 10)

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from axialmix.particles import _kernels
-from axialmix.particles._random import seed_generator
+from axialmix.particles._random import seed_generator, xoshiro_state
 from axialmix.particles.description import ParticleNetwork
 from axialmix.particles.feed import check_feed_schedule
 
@@ -198,7 +198,9 @@ def _apportion(total: int, weights: np.ndarray) -> np.ndarray:
 
 
 class _CountEngine:
-    def __init__(self, network: ParticleNetwork, counts: np.ndarray, tracked: np.ndarray) -> None:
+    def __init__(
+        self, network: ParticleNetwork, counts: np.ndarray, tracked: np.ndarray, seed: int
+    ) -> None:
         self.network = network
         self.counts = counts
         self.table = network.outgoing_table()
@@ -238,7 +240,9 @@ class _CountEngine:
 
 
 class _IdentityEngine:
-    def __init__(self, network: ParticleNetwork, counts: np.ndarray, tracked: np.ndarray) -> None:
+    def __init__(
+        self, network: ParticleNetwork, counts: np.ndarray, tracked: np.ndarray, seed: int
+    ) -> None:
         self.network = network
         self.counts = counts
         self.tracked = tracked
@@ -263,6 +267,7 @@ class _IdentityEngine:
         self.moved = np.empty(network.moves_per_step, np.int64)
         self.picks = np.empty(int(network.handed_out.max(initial=0)), np.int64)
         self.write = np.empty(network.n_compartments, np.int64)
+        self.generator = xoshiro_state(seed)
 
     @property
     def steps_done(self) -> int:
@@ -295,6 +300,7 @@ class _IdentityEngine:
                 self.moved,
                 self.picks,
                 self.write,
+                self.generator,
                 self.progress,
             )
             if self.steps_done - first < n_steps:
@@ -408,7 +414,8 @@ def simulate(
     outflow = np.zeros((steps, n_species), np.int64)
     rng = np.random.default_rng([seed, 1])
     seed_generator(seed)
-    state = (_CountEngine if engine == "count" else _IdentityEngine)(network, counts, tracked)
+    engine_type = _CountEngine if engine == "count" else _IdentityEngine
+    state = engine_type(network, counts, tracked, seed)
 
     recorded_steps = [0]
     recorded_counts = [counts.copy()]
