@@ -22,6 +22,8 @@ With ``T = 40`` and 32 nodes the step is 0.2 scaled units; the discretisation er
 
 from __future__ import annotations
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 from jax.scipy.special import erfc
@@ -82,6 +84,7 @@ def _line_integrals(theta: jax.Array, peclet: jax.Array, nodes: int):
     return exit_age, step_response
 
 
+@partial(jax.jit, static_argnames="nodes")
 def closed_closed_curves(
     theta: jax.Array, peclet: jax.Array, nodes: int = DEFAULT_NODES
 ) -> tuple[jax.Array, jax.Array]:

@@ -23,11 +23,12 @@ def exit_age_tanks(t: ArrayLike, tau: ArrayLike, n_tanks: ArrayLike) -> jax.Arra
 
     ``E(t) = (n/tau) (n theta)^{n-1} e^{-n theta} / Gamma(n)`` with ``theta = t/tau``,
     evaluated in log space (``gammaln``) so that large n neither overflows nor underflows;
-    n may be any positive real.
+    n may be any positive real. At ``t = 0`` the right limit is returned (0 for n > 1,
+    ``1/tau`` for n = 1, infinity for n < 1); earlier times give 0.
 
     **Arguments:**
 
-    - `t`: times (any unit), strictly increasing; times ``<= 0`` give 0.
+    - `t`: times (any unit), strictly increasing; times ``< 0`` give 0.
     - `tau`: total mean residence time of the chain, same unit as `t` (positive).
     - `n_tanks`: number of tanks (positive real; 1 is a single stirred tank).
 
@@ -42,7 +43,9 @@ def exit_age_tanks(t: ArrayLike, tau: ArrayLike, n_tanks: ArrayLike) -> jax.Arra
     positive = theta > 0
     scaled = n * jnp.where(positive, theta, 1.0)
     log_density = jnp.log(n) + (n - 1.0) * jnp.log(scaled) - scaled - gammaln(n)
-    return jnp.where(positive, jnp.exp(log_density), 0.0) / tau
+    at_zero = jnp.where(n > 1.0, 0.0, jnp.where(n == 1.0, 1.0, jnp.inf))
+    density = jnp.where(positive, jnp.exp(log_density), jnp.where(theta == 0, at_zero, 0.0))
+    return density / tau
 
 
 def step_response_tanks(t: ArrayLike, tau: ArrayLike, n_tanks: ArrayLike) -> jax.Array:
