@@ -19,7 +19,9 @@ figures belong to that case alone:
 * "max RSS MB": the process's peak resident memory by ``resource.getrusage`` (includes the
   interpreter, NumPy, numba and JAX, about the "base RSS" column before the run).
 
-"moves/s" counts particles moved over connections and the weir (for the count engine, the
+"CPU s" is the process's CPU time over the same run (``time.process_time``): on a shared
+machine it shows what the wall time would be with a core to itself. "moves/s" counts
+particles moved over connections and the weir (for the count engine, the
 particles its draws stand for). Finally the two engines' V-blender species-1 counts are
 compared: the identity run's counts against the mean and spread of 20 count-engine runs.
 """
@@ -73,11 +75,13 @@ def run_case(case: str, engine: str, steps: int) -> dict:
 
     network, initial, options = _case_inputs(case, steps)
     tracemalloc.start()
+    cpu = time.process_time()
     clock = time.perf_counter()
     result = particles.simulate(
         network, initial, steps, engine=engine, seed=1, report_every=max(steps // 6, 1), **options
     )
     wall = time.perf_counter() - clock
+    cpu = time.process_time() - cpu
     _, traced_peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     return {
@@ -88,6 +92,7 @@ def run_case(case: str, engine: str, steps: int) -> dict:
         "steps": result.steps_completed,
         "moves": result.particles_moved(),
         "wall_s": wall,
+        "cpu_s": cpu,
         "moves_per_s": result.particles_moved() / wall,
         "warm_up_s": warm_up,
         "traced_mb": traced_peak / 2**20,
@@ -158,8 +163,9 @@ def main() -> None:
     ]
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} at start", flush=True)
     header = (
-        f"{'case':<14}{'engine':<10}{'particles':>12}{'steps':>8}{'moves':>11}{'wall s':>9}"
-        f"{'moves/s':>10}{'warm-up s':>10}{'traced MB':>10}{'max RSS MB':>11}{'base RSS':>9}"
+        f"{'case':<14}{'engine':<10}{'particles':>10}{'steps':>7}{'moves':>10}{'wall s':>9}"
+        f"{'CPU s':>8}{'moves/s':>10}{'warm-up s':>10}{'traced MB':>10}{'max RSS MB':>11}"
+        f"{'base RSS':>9}"
     )
     print(header)
     rows = {}
@@ -167,35 +173,49 @@ def main() -> None:
         row = _in_subprocess(case, engine, steps // scale)
         rows[case, engine] = row
         print(
-            f"{case:<14}{engine:<10}{row['particles']:>12.3g}{row['steps']:>8}"
-            f"{row['moves']:>11.3g}{row['wall_s']:>9.3f}{row['moves_per_s']:>10.3g}"
-            f"{row['warm_up_s']:>10.2f}{row['traced_mb']:>10.1f}{row['max_rss_mb']:>11.0f}"
-            f"{row['base_rss_mb']:>9.0f}",
+            f"{case:<14}{engine:<10}{row['particles']:>10.3g}{row['steps']:>7}"
+            f"{row['moves']:>10.3g}{row['wall_s']:>9.3f}{row['cpu_s']:>8.3f}"
+            f"{row['moves_per_s']:>10.3g}{row['warm_up_s']:>10.2f}{row['traced_mb']:>10.1f}"
+            f"{row['max_rss_mb']:>11.0f}{row['base_rss_mb']:>9.0f}",
             flush=True,
         )
     print(f"load average {os.getloadavg()[0]:.2f} at end")
 
-    def wall(case: str, engine: str) -> float:
-        return rows[case, engine]["wall_s"]
+    def ratio(numerator: tuple[str, str], denominator: tuple[str, str]) -> str:
+        top, bottom = rows[numerator], rows[denominator]
+        return (
+            f"{top['wall_s'] / bottom['wall_s']:.2f} wall, {top['cpu_s'] / bottom['cpu_s']:.2f} CPU"
+        )
 
+    count_1e6, identity_1e6 = rows["vblender_1e6", "count"], rows["vblender_1e6", "identity"]
     moves_ratio = rows["grid_1e6", "identity"]["moves"] / rows["grid_1e4", "identity"]["moves"]
-    print("\nratios measured in this run (targets in brackets):")
-    print(f"  count V-blender 1e6: {wall('vblender_1e6', 'count'):.3f} s  [<= 0.1 s]")
-    print(f"  identity V-blender 1e6: {wall('vblender_1e6', 'identity'):.2f} s  [<= 2 s]")
+    print("\nmeasured in this run [targets]:")
     print(
-        f"  count 1e7 / 1e6: {wall('vblender_1e7', 'count') / wall('vblender_1e6', 'count'):.2f}"
-        f"   count 1e9 / 1e6: {wall('vblender_1e9', 'count') / wall('vblender_1e6', 'count'):.2f}"
-        "  [about 1: independent of particle number]"
+        f"  count V-blender 1e6: {count_1e6['wall_s']:.3f} s wall, "
+        f"{count_1e6['cpu_s']:.3f} s CPU  [<= 0.1 s]"
     )
     print(
-        f"  identity 1e7 / 1e6: "
-        f"{wall('vblender_1e7', 'identity') / wall('vblender_1e6', 'identity'):.2f}  [<= 2]"
+        f"  identity V-blender 1e6: {identity_1e6['wall_s']:.2f} s wall, "
+        f"{identity_1e6['cpu_s']:.2f} s CPU  [<= 2 s]"
     )
     print(
-        f"  count grid 1e6 / 1e4: {wall('grid_1e6', 'count') / wall('grid_1e4', 'count'):.2f}"
-        f"   identity grid 1e6 / 1e4: "
-        f"{wall('grid_1e6', 'identity') / wall('grid_1e4', 'identity'):.1f}"
-        f" (moves ratio {moves_ratio:.0f})"
+        "  count 1e7 / 1e6: "
+        + ratio(("vblender_1e7", "count"), ("vblender_1e6", "count"))
+        + ";  count 1e9 / 1e6: "
+        + ratio(("vblender_1e9", "count"), ("vblender_1e6", "count"))
+        + "  [about 1]"
+    )
+    print(
+        "  identity 1e7 / 1e6: "
+        + ratio(("vblender_1e7", "identity"), ("vblender_1e6", "identity"))
+        + "  [<= 2]"
+    )
+    print(
+        "  count grid 1e6 / 1e4: "
+        + ratio(("grid_1e6", "count"), ("grid_1e4", "count"))
+        + ";  identity grid 1e6 / 1e4: "
+        + ratio(("grid_1e6", "identity"), ("grid_1e4", "identity"))
+        + f"  [identity: moves ratio {moves_ratio:.0f}]"
     )
     if not args.quick:
         z, n = _agreement(rows["vblender_1e6", "identity"])

@@ -88,7 +88,7 @@ def _rebalance(n, sources, targets, moves, feed, outflow) -> np.ndarray:
             node = int(sources[e])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ParticleNetwork:
     """Compartments holding whole particles, with whole numbers of particles moved per step.
 
