@@ -131,3 +131,28 @@ def test_simulate_rejects_negative_steps_with_status_2(capsys):
         main(["simulate", "vblender", "--steps", "-3"])
     assert stop.value.code == 2
     assert "positive whole number" in capsys.readouterr().err
+
+
+def test_interrupted_simulation_still_writes_results_so_far(tmp_path, monkeypatch):
+    import axialmix.particles.cli as cli
+
+    def interrupt(step, total, elapsed):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "stderr_progress", interrupt)
+    path = tmp_path / "partial.json"
+    argv = [
+        "simulate",
+        "vblender",
+        "--steps",
+        "5000",
+        "--report-every",
+        "1000",
+        "--json",
+        str(path),
+    ]
+    assert main(argv) == 0
+    data = json.loads(path.read_text())
+    assert data["interrupted"] and data["steps_completed"] == 1000
+    assert [r["step"] for r in data["reports"]] == [0, 1000]
+    assert [p.name for p in tmp_path.iterdir()] == ["partial.json"]  # no temporary file left
