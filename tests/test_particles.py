@@ -40,6 +40,7 @@ def _chi_square_p_value(observed: np.ndarray, expected: np.ndarray) -> float:
     ("good", "bad", "sample"),
     [
         (5, 7, 4),  # direct selection (sample < 10)
+        (6, 8, 11),  # direct selection of the complement (sample within 10 of the total)
         (40, 60, 30),  # ratio-of-uniforms, small population
         (1000, 199_000, 1000),  # V-blender scale
         (100_000_000, 100_000_000, 1000),  # 1e9-particle scale
