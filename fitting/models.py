@@ -1,0 +1,375 @@
+"""Models to fit: named, immutable wrappers around the forward models of :mod:`axialmix`.
+
+A :class:`Model` is a pure JAX function ``f(t, params) -> E(t)`` (``params`` a dict of scalars,
+``E`` in 1/time) together with its parameter names, default :class:`~fitting.optimize.Parameter`
+settings (start value and bounds) and, where one exists, a method-of-moments start value
+computed from a measured curve.
+
+Built-in models (also by name through :func:`get_model`):
+
+* ``'adm'`` (:data:`adm_closed`): closed–closed ADM, exact
+  (:func:`axialmix.analytic.exit_age_closed`); parameters ``tau``, ``peclet``.
+* ``'adm-fv'`` (:data:`adm_closed_fv`): closed–closed ADM by finite volumes
+  (:func:`axialmix.adm.exit_age`); ``tau``, ``peclet``.
+* ``'adm-open'`` (:data:`adm_open`): open–open ADM (:func:`axialmix.analytic.exit_age_open`);
+  ``tau``, ``peclet``.
+* ``'tanks'`` (:data:`tanks`): tanks in series, gamma form with a real number of tanks
+  (:func:`axialmix.analytic.exit_age_tanks`); ``tau``, ``n_tanks``.
+* ``'four-compartment'`` (:data:`four_compartment`): the source's 2 × 2 network
+  (:func:`axialmix.network.four_compartment_exit_age`); ``k_f``, ``k_r``, ``k_s``, ``k_out``.
+
+Method-of-moments start values: ``tau`` = mean, ``Pe`` from
+:func:`axialmix.analytic.peclet_from_moments` (closed–closed relation, also used as a start
+for the open–open model), ``n_tanks = mean² / variance``; for the four-compartment model all
+rates equal, matched to the mean residence time.
+
+The :mod:`axialmix` functions are looked up when a model is first evaluated, so this module
+imports even where an optional forward model is missing.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fitting.io import Curve
+from fitting.optimize import Parameter, Parameters
+
+__all__ = [
+    "MODELS",
+    "Model",
+    "adm_closed",
+    "adm_closed_fv",
+    "adm_open",
+    "custom_model",
+    "four_compartment",
+    "get_model",
+    "moment_estimates",
+    "network_model",
+    "tanks",
+]
+
+ModelFunction = Callable[..., object]
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """A fittable residence-time model: a JAX function of time and a parameter dict.
+
+    **Arguments:**
+
+    - `name`: short name (used in reports and by :func:`get_model`).
+    - `parameter_names`: the names ``f`` reads from its parameter dict, in report order.
+    - `function`: ``f(t, params) -> E``: ``t`` an array of times (unit T), ``params`` a dict
+      of scalar JAX values, returns the exit-age density at ``t`` (unit 1/T). Must be
+      jit-, grad- and vmap-able.
+    - `defaults`: one :class:`~fitting.optimize.Parameter` per name (start value, bounds).
+    - `initial_guess`: optional ``curve -> {name: value}`` start values from the curve's
+      moments; used when :func:`~fitting.optimize.fit` is given no start values.
+    - `description`: one line for reports.
+    """
+
+    name: str
+    parameter_names: tuple[str, ...]
+    function: ModelFunction
+    defaults: Mapping[str, Parameter] = field(repr=False)
+    initial_guess: Callable[[Curve], dict[str, float]] | None = field(default=None, repr=False)
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        names = tuple(self.parameter_names)
+        if not names:
+            raise ValueError(f"model {self.name!r} has no parameters")
+        if len(set(names)) != len(names):
+            raise ValueError(f"model {self.name!r} has repeated parameter names: {names}")
+        missing = [n for n in names if n not in self.defaults]
+        if missing:
+            raise ValueError(f"model {self.name!r}: no default for parameter(s) {missing}")
+        object.__setattr__(self, "parameter_names", names)
+        object.__setattr__(
+            self, "defaults", {n: _as_parameter(self.defaults[n], n) for n in names}
+        )
+
+    def __call__(self, time, params: Mapping[str, object]):
+        """Evaluate the model: exit-age density at `time` for the parameter values `params`."""
+        return self.function(time, {n: params[n] for n in self.parameter_names})
+
+    def parameters(self, curve: Curve | None = None) -> Parameters:
+        """A fresh :class:`~fitting.optimize.Parameters` with the defaults.
+
+        With a `curve` and a method-of-moments guess available, the start values are the
+        moment estimates (clipped into the bounds).
+        """
+        params = Parameters({n: self.defaults[n] for n in self.parameter_names})
+        if curve is not None and self.initial_guess is not None:
+            for name, value in self.initial_guess(curve).items():
+                if name in params and np.isfinite(value):
+                    params[name] = params[name].replace(value=_clip(value, params[name]))
+        return params
+
+
+def _as_parameter(value: Parameter | float, name: str) -> Parameter:
+    if isinstance(value, Parameter):
+        return value
+    try:
+        return Parameter(float(value))
+    except (TypeError, ValueError):
+        raise ValueError(f"parameter {name!r}: expected a Parameter or a number") from None
+
+
+def _clip(value: float, parameter: Parameter) -> float:
+    """Move a start value strictly inside the parameter's bounds."""
+    low = parameter.min if parameter.min is not None else -np.inf
+    high = parameter.max if parameter.max is not None else np.inf
+    if np.isfinite(low) and np.isfinite(high):
+        margin = 1e-3 * (high - low)
+        return float(np.clip(value, low + margin, high - margin))
+    if np.isfinite(low) and value <= low:
+        return float(low + max(abs(low), 1.0) * 1e-3)
+    if np.isfinite(high) and value >= high:
+        return float(high - max(abs(high), 1.0) * 1e-3)
+    return float(value)
+
+
+def _lookup(module: str, name: str) -> Callable:
+    """The function `name` of `module`, with a one-line error if it is not available."""
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError):
+        raise ImportError(f"this model needs {module}.{name}, which is not available") from None
+
+
+def moment_estimates(curve: Curve) -> tuple[float, float]:
+    """Mean residence time and variance of a measured curve (trapezoid rule).
+
+    **Arguments:**
+
+    - `curve`: a measured curve (need not be normalised).
+
+    **Returns:**
+
+    ``(mean, variance)`` in the curve's time unit and its square.
+    """
+    from axialmix.rtd import moments
+
+    mean, variance = moments(curve.time, curve.value)
+    return float(mean), float(variance)
+
+
+def _adm_guess(curve: Curve) -> dict[str, float]:
+    mean, variance = moment_estimates(curve)
+    peclet_from_moments = _lookup("axialmix.analytic", "peclet_from_moments")
+    return {"tau": mean, "peclet": float(peclet_from_moments(mean, variance))}
+
+
+def _tanks_guess(curve: Curve) -> dict[str, float]:
+    mean, variance = moment_estimates(curve)
+    return {"tau": mean, "n_tanks": mean**2 / variance}
+
+
+def _adm_closed_function(t, p):
+    return _lookup("axialmix.analytic", "exit_age_closed")(t, p["tau"], p["peclet"])
+
+
+def _adm_closed_fv_function(t, p):
+    return _lookup("axialmix.adm", "exit_age")(t, p["tau"], p["peclet"])
+
+
+def _adm_open_function(t, p):
+    return _lookup("axialmix.analytic", "exit_age_open")(t, p["tau"], p["peclet"])
+
+
+def _tanks_function(t, p):
+    return _lookup("axialmix.analytic", "exit_age_tanks")(t, p["tau"], p["n_tanks"])
+
+
+def _adm_defaults() -> dict[str, Parameter]:
+    return {"tau": Parameter(1.0, min=0.0), "peclet": Parameter(10.0, min=0.0)}
+
+
+adm_closed = Model(
+    name="adm",
+    parameter_names=("tau", "peclet"),
+    function=_adm_closed_function,
+    defaults=_adm_defaults(),
+    initial_guess=_adm_guess,
+    description="axial dispersion model, closed-closed (Danckwerts), exact",
+)
+
+adm_closed_fv = Model(
+    name="adm-fv",
+    parameter_names=("tau", "peclet"),
+    function=_adm_closed_fv_function,
+    defaults=_adm_defaults(),
+    initial_guess=_adm_guess,
+    description="axial dispersion model, closed-closed (Danckwerts), finite volumes",
+)
+
+adm_open = Model(
+    name="adm-open",
+    parameter_names=("tau", "peclet"),
+    function=_adm_open_function,
+    defaults=_adm_defaults(),
+    initial_guess=_adm_guess,
+    description="axial dispersion model, open-open, exact",
+)
+
+tanks = Model(
+    name="tanks",
+    parameter_names=("tau", "n_tanks"),
+    function=_tanks_function,
+    defaults={"tau": Parameter(1.0, min=0.0), "n_tanks": Parameter(5.0, min=0.0)},
+    initial_guess=_tanks_guess,
+    description="tanks in series (gamma distribution, continuous number of tanks)",
+)
+
+
+# --- the four-compartment network (MODELS.md section 3) -------------------------------------
+
+FOUR_COMPARTMENT_NAMES = ("k_f", "k_r", "k_s", "k_out")
+
+
+def _four_compartment_rate_matrix(k_f: float, k_r: float, k_s: float, k_out: float) -> np.ndarray:
+    """Rate matrix K of dm/dt = K m for the 2 × 2 layout (1 inlet, 4 outlet), MODELS.md §3."""
+    return np.array(
+        [
+            [-(k_f + k_s), k_r, k_s, 0.0],
+            [k_f, -(k_r + k_s), 0.0, k_s],
+            [k_s, 0.0, -(k_f + k_s), k_r],
+            [0.0, k_s, k_f, -(k_s + k_r) - k_out],
+        ]
+    )
+
+
+def _four_compartment_guess(curve: Curve) -> dict[str, float]:
+    """All rates equal to k, with k matched to the measured mean residence time.
+
+    The mean residence time of a linear compartment network fed a unit pulse into
+    compartment 1 is ``1ᵀ (-K)⁻¹ e_1``; with all rates equal to k it is ``m_1 / k``, where
+    ``m_1`` is its value for k = 1.
+    """
+    mean, _ = moment_estimates(curve)
+    unit_mean = float(np.sum(np.linalg.solve(-_four_compartment_rate_matrix(1, 1, 1, 1),
+                                             np.eye(4)[0])))
+    rate = unit_mean / mean
+    return dict.fromkeys(FOUR_COMPARTMENT_NAMES, rate)
+
+
+def _four_compartment_function(t, p):
+    exit_age = _lookup("axialmix.network", "four_compartment_exit_age")
+    return exit_age(t, p["k_f"], p["k_r"], p["k_s"], p["k_out"])
+
+
+four_compartment = Model(
+    name="four-compartment",
+    parameter_names=FOUR_COMPARTMENT_NAMES,
+    function=_four_compartment_function,
+    defaults={n: Parameter(1.0, min=0.0) for n in FOUR_COMPARTMENT_NAMES},
+    initial_guess=_four_compartment_guess,
+    description="four-compartment network (2 x 2; k_f forward, k_r backward, k_s side, k_out)",
+)
+
+
+def network_model(
+    network_file: str | Path,
+    *parameter_names: str,
+    name: str | None = None,
+) -> Model:
+    """A fittable model from any compartment-network JSON file of :mod:`axialmix.network`.
+
+    **Arguments:**
+
+    - `network_file`: the network description (JSON) read by :mod:`axialmix.network`.
+    - `parameter_names`: the rate names of the file to fit (all named rates by default).
+    - `name`: the model's name (the file name without extension by default).
+
+    **Returns:**
+
+    A :class:`Model` whose parameters are the chosen rates (1/time, positive).
+    """
+    load = _lookup("axialmix.network", "load_network")
+    exit_age = _lookup("axialmix.network", "network_exit_age")
+    network = load(network_file)
+    names = tuple(parameter_names) or tuple(network.rate_names)
+    defaults = {n: Parameter(float(network.rates.get(n, 1.0)), min=0.0) for n in names}
+
+    def function(t, p):
+        return exit_age(network, t, p)
+
+    return Model(
+        name=name or Path(network_file).stem,
+        parameter_names=names,
+        function=function,
+        defaults=defaults,
+        description=f"compartment network from {Path(network_file).name}",
+    )
+
+
+def custom_model(
+    name: str,
+    fn: ModelFunction,
+    parameters: Mapping[str, Parameter | float],
+    *,
+    initial_guess: Callable[[Curve], dict[str, float]] | None = None,
+    description: str = "",
+) -> Model:
+    """Wrap a user's own JAX function as a fittable model.
+
+    **Arguments:**
+
+    - `name`: the model's name.
+    - `fn`: ``fn(t, params) -> E``; ``params`` is a dict of scalar JAX values keyed by the
+      names of `parameters`. It must be written in ``jax.numpy`` (jit/grad/vmap-able).
+    - `parameters`: name -> :class:`~fitting.optimize.Parameter` or start value, in order.
+    - `initial_guess`: optional ``curve -> {name: value}`` start values.
+    - `description`: one line for reports.
+
+    **Returns:**
+
+    A :class:`Model`.
+    """
+    if not callable(fn):
+        raise ValueError(f"custom model {name!r}: fn must be callable")
+    return Model(
+        name=name,
+        parameter_names=tuple(parameters),
+        function=fn,
+        defaults={n: _as_parameter(v, n) for n, v in parameters.items()},
+        initial_guess=initial_guess,
+        description=description or f"user model {name}",
+    )
+
+
+MODELS: dict[str, Model] = {
+    "adm": adm_closed,
+    "adm-fv": adm_closed_fv,
+    "adm-open": adm_open,
+    "tanks": tanks,
+    "four-compartment": four_compartment,
+}
+
+
+def get_model(model: str | Model) -> Model:
+    """The built-in model called `model` (see :data:`MODELS`), or `model` itself.
+
+    **Arguments:**
+
+    - `model`: a name (``'adm'``, ``'adm-fv'``, ``'adm-open'``, ``'tanks'``,
+      ``'four-compartment'``) or a :class:`Model`.
+
+    **Returns:**
+
+    The :class:`Model`.
+    """
+    if isinstance(model, Model):
+        return model
+    try:
+        return MODELS[model]
+    except (KeyError, TypeError):
+        raise ValueError(
+            f"unknown model {model!r}; choose one of {', '.join(MODELS)}"
+        ) from None
