@@ -37,6 +37,7 @@ are given; pass them to differentiate, jit or vmap over rates.
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -245,7 +246,7 @@ def _times_array(times: ArrayLike) -> tuple[Array, np.ndarray | None, tuple[int,
     if concrete is not None:
         concrete = np.atleast_1d(concrete.astype(float))
     array = jnp.atleast_1d(jnp.asarray(times, dtype=float))
-    shape = jnp.shape(times)
+    shape = np.shape(times) if concrete is not None else jnp.shape(times)
     if len(shape) > 1:
         raise ValueError(f"times must be a scalar or one-dimensional, got shape {shape}.")
     require_increasing_times("times", concrete if concrete is not None else array)
@@ -258,12 +259,23 @@ def _continuous_states(
     """``expm(K t_j) start`` for increasing times (zero-clipped: t < 0 gives ``start``)."""
     if concrete is not None:
         steps = np.diff(np.maximum(concrete, 0.0), prepend=0.0)
-        increments, uniform = jnp.asarray(steps), _uniform_spacing(steps)
-    else:
-        increments, uniform = jnp.diff(jnp.maximum(times, 0.0), prepend=0.0), False
+        return _exponential_states(generator, start, jnp.asarray(steps), _uniform_spacing(steps))
+    return _exponential_states(
+        generator, start, jnp.diff(jnp.maximum(times, 0.0), prepend=0.0), False
+    )
+
+
+# Jitted with the strategy static, so that eager calls reuse the compiled propagation.
+@partial(jax.jit, static_argnames="uniform")
+def _exponential_states(generator: Array, start: Array, increments: Array, uniform: bool) -> Array:
     return _propagate(
         lambda h: expm(generator * h, max_squarings=_MAX_SQUARINGS), start, increments, uniform
     )
+
+
+@partial(jax.jit, static_argnames="uniform")
+def _power_states(step: Array, start: Array, increments: Array, uniform: bool) -> Array:
+    return _propagate(lambda k: _matrix_power(step, k), start, increments, uniform)
 
 
 def _step_indices(network: CompartmentNetwork, concrete: np.ndarray | None) -> np.ndarray:
@@ -285,9 +297,8 @@ def _step_indices(network: CompartmentNetwork, concrete: np.ndarray | None) -> n
 def _discrete_states(step: Array, start: Array, steps: np.ndarray) -> Array:
     """``P^{k_j} start`` for non-decreasing step counts ``k_j >= 0``."""
     increments = np.diff(steps, prepend=0)
-    return _propagate(
-        lambda k: _matrix_power(step, k), start, jnp.asarray(increments), _uniform_spacing(
-            increments.astype(float))
+    return _power_states(
+        step, start, jnp.asarray(increments), _uniform_spacing(increments.astype(float))
     )
 
 
@@ -411,63 +422,73 @@ def outlet_response(
     rates, outflow_rates = _rate_arrays(network, rates, outflow_rates)
     outflow = _outflow_vector(network, outflow_rates)
     split = jnp.asarray(network.feed_split)
-    n = network.n_compartments
     if network.is_discrete:
-        dt = network.time_step
         steps = _step_indices(network, concrete)
         if np.any(np.diff(steps) != 1):
             raise ValueError("A discrete network needs one inlet sample per step.")
         step = step_matrix(network, rates, outflow_rates)
-        feeds = split[None, :] * signal[:, None] * dt
-
-        def advance(state, feed):
-            state = step @ state + feed
-            return state, state
-
-        first = feeds[0]
-        _, later = jax.lax.scan(advance, first, feeds[1:])
-        states = jnp.concatenate([first[None], later])
-        # Outflow of step k is reported at t_{k+1}.
-        values = jnp.concatenate([jnp.zeros(1), states[:-1] @ outflow / dt])
+        feeds = split[None, :] * signal[:, None] * network.time_step
+        values = _stepped_response(step, feeds, outflow / network.time_step)
         return values.reshape(shape)
-
+    if times.shape[0] == 1:
+        return jnp.zeros(shape)
     generator = generator_matrix(network, rates, outflow_rates)
+    uniform = concrete is not None and _uniform_spacing(np.diff(concrete, prepend=concrete[0]))
+    values = _first_order_hold_response(generator, split, outflow, times, signal, uniform)
+    return values.reshape(shape)
+
+
+@jax.jit
+def _stepped_response(step: Array, feeds: Array, outflow: Array) -> Array:
+    """Outflow rates for ``m_k = P m_{k-1} + feed_k``; the outflow of step k is at t_{k+1}."""
+
+    def advance(state, feed):
+        state = step @ state + feed
+        return state, state
+
+    _, later = jax.lax.scan(advance, feeds[0], feeds[1:])
+    states = jnp.concatenate([feeds[:1], later])
+    return jnp.concatenate([jnp.zeros(1), states[:-1] @ outflow])
+
+
+@partial(jax.jit, static_argnames="uniform")
+def _first_order_hold_response(
+    generator: Array, split: Array, outflow: Array, times: Array, signal: Array, uniform: bool
+) -> Array:
+    """Exact outflow for a piecewise-linear feed, by the augmented matrix exponential.
+
+    On an interval of length h with feed ``u_k + g (t - t_k)``, the state ``(m, u, g)``
+    obeys ``d/dt (m, u, g) = [[K, s, 0], [0, 0, 1], [0, 0, 0]] (m, u, g)``.
+    """
+    n = generator.shape[0]
     augmented = (
         jnp.zeros((n + 2, n + 2))
         .at[:n, :n].set(generator)
         .at[:n, n].set(split)
         .at[n, n + 1].set(1.0)
     )
-    if times.shape[0] == 1:
-        return jnp.zeros(shape)
     intervals = jnp.diff(times)
     slopes = jnp.diff(signal) / intervals
 
     def transition(h):
         return expm(augmented * h, max_squarings=_MAX_SQUARINGS)[:n]
 
-    def advance_with(block, state, sample, slope):
-        return block[:, :n] @ state + block[:, n] * sample + block[:, n + 1] * slope
+    def advance(state, inputs):
+        block, sample, slope = inputs
+        state = block[:, :n] @ state + block[:, n] * sample + block[:, n + 1] * slope
+        return state, state
 
-    if concrete is not None and _uniform_spacing(np.diff(concrete, prepend=concrete[0])):
-        block = transition(jnp.asarray(concrete[1] - concrete[0]))
+    if uniform:
+        block = transition(intervals[0])
 
-        def advance(state, inputs):
-            state = advance_with(block, state, *inputs)
-            return state, state
+        def advance_uniform(state, inputs):
+            return advance(state, (block, *inputs))
 
-        _, states = jax.lax.scan(advance, jnp.zeros(n), (signal[:-1], slopes))
+        _, states = jax.lax.scan(advance_uniform, jnp.zeros(n), (signal[:-1], slopes))
     else:
         blocks = jax.vmap(transition)(intervals)
-
-        def advance(state, inputs):
-            block, sample, slope = inputs
-            state = advance_with(block, state, sample, slope)
-            return state, state
-
         _, states = jax.lax.scan(advance, jnp.zeros(n), (blocks, signal[:-1], slopes))
-    values = jnp.concatenate([jnp.zeros(1), states @ outflow])
-    return values.reshape(shape)
+    return jnp.concatenate([jnp.zeros(1), states @ outflow])
 
 
 def compartment_amounts(
