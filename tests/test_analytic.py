@@ -398,6 +398,11 @@ def test_shape_argument_is_named_in_errors():
         analytic.exit_age_tanks(jnp.array([1.0]), 1.0, -2.0)
 
 
+def test_too_few_quadrature_nodes_are_rejected():
+    with pytest.raises(ValueError, match="nodes"):
+        analytic.exit_age_closed(jnp.array([1.0]), 1.0, 2.0, nodes=4)
+
+
 def test_negative_times_are_allowed_and_give_zero():
     t = jnp.array([-5.0, -1.0, 0.0])
     for curve, shape in CURVES:
