@@ -4,10 +4,11 @@ For each Peclet number the exit age E(theta) (tau = 1, so t = theta) is computed
 theta in [0, 3] at 301 points by
 
 * ``exact``     axialmix.analytic.exit_age_closed (Bromwich inversion, JAX, jitted);
-* ``FV``        axialmix.adm.exit_age (JAX finite volumes, jitted): forward; forward and the
-                gradient of a least-squares loss with respect to (tau, Pe) by
-                ``jax.value_and_grad``; and a vmapped batch of 100 (tau, Pe) sets, reported
-                per curve;
+* ``FV``        axialmix.adm.exit_age (JAX finite volumes, jitted, default settings): forward;
+                forward and the gradient of a least-squares loss with respect to (tau, Pe)
+                by ``jax.value_and_grad``; and a vmapped batch of 100 (tau, Pe) sets
+                (tau and Pe within 20 % of the row's, one ``SolverConfig.for_peclet`` level
+                for the batch), reported per curve;
 * ``rtdpy``     rtdpy.AD_cc (method of lines, scipy BDF) with nx = 200 and 400 nodes;
 * ``FiPy``      axialmix.reference.exit_age_fipy (backward Euler, central differences) with
                 its default max(200, Pe) cells and a step of 0.005 tau (0.01 with --quick).
@@ -34,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import axialmix  # noqa: F401  (float64)
+from axialmix.adm import SolverConfig, exit_age
 from axialmix.analytic import exit_age_closed
 from axialmix.analytic.highprecision import exit_age_closed_series
 from axialmix.reference import exit_age_fipy
@@ -67,64 +69,57 @@ def peak_error(curve: np.ndarray, reference: np.ndarray) -> float:
     return float(np.max(np.abs(np.asarray(curve) - reference)) / np.max(reference))
 
 
+THETA_JAX = jnp.asarray(THETA)
+
+
+def _squared_error(params: jax.Array, target: jax.Array, config: SolverConfig | None) -> jax.Array:
+    """Least-squares loss of the FV exit age at params = (tau, Pe) against a target curve."""
+    curve = exit_age(THETA_JAX, params[0], params[1], config=config)
+    return jnp.mean((curve - target) ** 2)
+
+
+# Jitted once for all Peclet numbers (traced Pe), so compilation is paid in the first row only.
+exact_curve = jax.jit(lambda tau, pe: exit_age_closed(THETA_JAX, tau, pe))
+fv_curve = jax.jit(lambda tau, pe: exit_age(THETA_JAX, tau, pe))
+fv_value_and_grad = jax.jit(jax.value_and_grad(_squared_error), static_argnums=2)
+
+
 def benchmark_peclet(peclet: float, repeats: int, quick: bool) -> tuple[list[dict], dict]:
     """Rows of the accuracy/speed table and the promised ratios for one Peclet number."""
     from rtdpy import AD_cc
 
-    from axialmix.adm import exit_age
-
     rows = []
-    theta = jnp.asarray(THETA)
     reference = exit_age_closed_series(THETA, peclet)
 
-    exact = jax.jit(lambda tau, pe: exit_age_closed(theta, tau, pe))
-    compile_s, run_s = timed(lambda: exact(1.0, peclet), repeats)
-    rows.append(
-        dict(
-            method="exact (Bromwich)",
-            error=peak_error(exact(1.0, peclet), reference),
-            seconds=run_s,
-            compile=compile_s,
-        )
-    )
+    def add(method, seconds, compile_s=None, curve=None, own_reference=reference):
+        error = None if curve is None else peak_error(curve, own_reference)
+        rows.append(dict(method=method, error=error, seconds=seconds, compile=compile_s))
 
-    forward = jax.jit(lambda tau, pe: exit_age(theta, tau, pe))
-    compile_s, run_s = timed(lambda: forward(1.0, peclet), repeats)
-    fv_curve = np.asarray(forward(1.0, peclet))
-    rows.append(
-        dict(
-            method="FV forward",
-            error=peak_error(fv_curve, reference),
-            seconds=run_s,
-            compile=compile_s,
-        )
-    )
-    fv_forward_s = run_s
+    compile_s, exact_s = timed(lambda: exact_curve(1.0, peclet), repeats)
+    add("exact (Bromwich)", exact_s, compile_s, exact_curve(1.0, peclet))
 
-    target = jnp.asarray(reference)
+    compile_s, fv_forward_s = timed(lambda: fv_curve(1.0, peclet), repeats)
+    add("FV forward", fv_forward_s, compile_s, fv_curve(1.0, peclet))
 
-    def loss(params):
-        return jnp.mean((exit_age(theta, params[0], params[1]) - target) ** 2)
-
-    value_and_grad = jax.jit(jax.value_and_grad(loss))
+    # Gradient of a fit's loss with respect to (tau, Pe) by reverse mode: with the default
+    # settings (resolution level chosen from the traced Pe at run time, as in a fit) and with
+    # the level fixed in advance by SolverConfig.for_peclet.
+    target = jnp.asarray(reference) * 1.01
     params = jnp.array([1.0, peclet])
-    compile_s, run_s = timed(lambda: value_and_grad(params), repeats)
-    rows.append(dict(method="FV forward+grad", error=None, seconds=run_s, compile=compile_s))
-    fv_grad_s = run_s
+    compile_s, fv_grad_s = timed(lambda: fv_value_and_grad(params, target, None), repeats)
+    add("FV fwd+grad (default)", fv_grad_s, compile_s)
+    fixed = SolverConfig.for_peclet(peclet)
+    compile_s, fv_grad_fixed_s = timed(lambda: fv_value_and_grad(params, target, fixed), repeats)
+    add("FV fwd+grad (fixed level)", fv_grad_fixed_s, compile_s)
 
     rng = np.random.default_rng(0)
     taus = jnp.asarray(rng.uniform(0.8, 1.2, BATCH_SIZE))
     pes = jnp.asarray(peclet * rng.uniform(0.8, 1.2, BATCH_SIZE))
-    batch = jax.jit(jax.vmap(lambda tau, pe: exit_age(theta, tau, pe)))
-    compile_s, run_s = timed(lambda: batch(taus, pes), max(1, repeats // 4))
-    rows.append(
-        dict(
-            method=f"FV vmap {BATCH_SIZE}, per curve",
-            error=None,
-            seconds=run_s / BATCH_SIZE,
-            compile=compile_s,
-        )
-    )
+    # One resolution level for the whole batch (the FV solver's advice for vmap).
+    batch_config = SolverConfig.for_peclet(float(pes.max()))
+    batch = jax.jit(jax.vmap(lambda tau, pe: exit_age(THETA_JAX, tau, pe, config=batch_config)))
+    compile_s, batch_s = timed(lambda: batch(taus, pes), max(1, repeats // 4))
+    add(f"FV vmap {BATCH_SIZE}, per curve", batch_s / BATCH_SIZE, compile_s)
 
     rtdpy_seconds = {}
     for nx in (200, 400):
@@ -136,8 +131,7 @@ def benchmark_peclet(peclet: float, repeats: int, quick: bool) -> tuple[list[dic
         model = rtdpy_curve()
         own_grid = np.asarray(model.time)
         assert np.allclose(own_grid, THETA[: own_grid.size], rtol=0, atol=1e-12)
-        error = peak_error(model.exitage, reference[: own_grid.size])
-        rows.append(dict(method=f"rtdpy AD_cc nx={nx}", error=error, seconds=run_s, compile=None))
+        add(f"rtdpy AD_cc nx={nx}", run_s, None, model.exitage, reference[: own_grid.size])
         rtdpy_seconds[nx] = run_s
 
     fipy_step = 0.01 if quick else FIPY_STEP
@@ -145,19 +139,12 @@ def benchmark_peclet(peclet: float, repeats: int, quick: bool) -> tuple[list[dic
     start = time.perf_counter()
     fipy_curve = exit_age_fipy(THETA, 1.0, peclet, n_cells=fipy_cells, dt=fipy_step)
     fipy_s = time.perf_counter() - start
-    rows.append(
-        dict(
-            method=f"FiPy n={fipy_cells} dθ={fipy_step:g}",
-            error=peak_error(fipy_curve, reference),
-            seconds=fipy_s,
-            compile=None,
-        )
-    )
+    add(f"FiPy n={fipy_cells} dθ={fipy_step:g}", fipy_s, None, fipy_curve)
 
-    exact_s = rows[0]["seconds"]
     ratios = {
         "FV/rtdpy200": rtdpy_seconds[200] / fv_forward_s,
-        "FVgrad/FV": fv_grad_s / fv_forward_s,
+        "grad/FV": fv_grad_s / fv_forward_s,
+        "grad(fixed)/FV": fv_grad_fixed_s / fv_forward_s,
         "FV/FiPy": fipy_s / fv_forward_s,
         "exact/rtdpy200": rtdpy_seconds[200] / exact_s,
     }
@@ -212,7 +199,8 @@ def main() -> None:
     names = list(ratio_lines[0][1])
     print("ratios measured in this run:")
     print("  FV/rtdpy200    speed-up of the FV forward solve over rtdpy AD_cc nx=200")
-    print("  FVgrad/FV      cost of FV forward + gradient w.r.t. (tau, Pe) over forward alone")
+    print("  grad/FV        cost of FV forward + gradient w.r.t. (tau, Pe) over forward alone")
+    print("  grad(fixed)/FV the same with the resolution level fixed (SolverConfig.for_peclet)")
     print("  FV/FiPy        speed-up of the FV forward solve over the FiPy reference")
     print("  exact/rtdpy200 speed-up of the exact solution over rtdpy AD_cc nx=200")
     ratio_header = f"{'Pe':>7}" + "".join(f"  {name:>15}" for name in names)
