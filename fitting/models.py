@@ -30,7 +30,8 @@ imports even where an optional forward model is missing.
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable, Mapping
+import re
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -274,37 +275,84 @@ four_compartment = Model(
 )
 
 
+def _identifier(text: str) -> str:
+    return re.sub(r"\W", "_", text)
+
+
 def network_model(
     network_file: str | Path,
     *parameter_names: str,
+    groups: Mapping[str, Sequence[str]] | None = None,
     name: str | None = None,
 ) -> Model:
     """A fittable model from any compartment-network JSON file of :mod:`axialmix.network`.
 
+    Every rate of the file has a name: ``k_<source>_<target>`` for a connection and
+    ``k_out_<outlet>`` for an outflow (non-word characters of compartment names become
+    ``_``). `groups` lets one parameter drive several rates (``{"k_f": ["k_C1_C2",
+    "k_C3_C4"]}``). Rates that are not fitted keep the file's values.
+
     **Arguments:**
 
-    - `network_file`: the network description (JSON) read by :mod:`axialmix.network`.
-    - `parameter_names`: the rate names of the file to fit (all named rates by default).
+    - `network_file`: a network JSON file (:meth:`axialmix.network.CompartmentNetwork.to_json`).
+    - `parameter_names`: the parameters to fit (rate names, or keys of `groups`); by default
+      every key of `groups`, or every rate of the file.
+    - `groups`: parameter name -> rate names it sets.
     - `name`: the model's name (the file name without extension by default).
 
     **Returns:**
 
-    A :class:`Model` whose parameters are the chosen rates (1/time, positive).
+    A :class:`Model` with positive rate parameters (1/time; per step for discrete networks),
+    started at the file's values.
     """
-    load = _lookup("axialmix.network", "load_network")
-    exit_age = _lookup("axialmix.network", "network_exit_age")
-    network = load(network_file)
-    names = tuple(parameter_names) or tuple(network.rate_names)
-    defaults = {n: Parameter(float(network.rates.get(n, 1.0)), min=0.0) for n in names}
+    import jax.numpy as jnp
+
+    from axialmix.network import CompartmentNetwork, exit_age
+
+    network = CompartmentNetwork.from_json(network_file)
+    rate_index = {
+        _identifier(f"k_{c.source}_{c.target}"): ("connection", i)
+        for i, c in enumerate(network.connections)
+    }
+    rate_index.update({
+        _identifier(f"k_out_{o.name}"): ("outflow", j) for j, o in enumerate(network.outlets)
+    })
+    groups = dict(groups) if groups is not None else {}
+    for group, members in groups.items():
+        unknown = [m for m in members if m not in rate_index]
+        if unknown:
+            raise ValueError(f"group {group!r}: unknown rate(s) {unknown}; the file has "
+                             f"{', '.join(rate_index)}")
+    names = tuple(parameter_names) or tuple(groups) or tuple(rate_index)
+    members = {n: tuple(groups.get(n, (n,))) for n in names}
+    for parameter, rates in members.items():
+        if any(r not in rate_index for r in rates):
+            raise ValueError(f"unknown rate {parameter!r}; the file has {', '.join(rate_index)}")
+    base_rates = np.asarray(network.rates, dtype=float)
+    base_outflow = np.asarray(network.outflow_rates, dtype=float)
+
+    def start(parameter: str) -> float:
+        kind, index = rate_index[members[parameter][0]]
+        value = (base_rates if kind == "connection" else base_outflow)[index]
+        return float(value) if value > 0 else 1.0
 
     def function(t, p):
-        return exit_age(network, t, p)
+        rates = jnp.asarray(base_rates)
+        outflow = jnp.asarray(base_outflow)
+        for parameter, rate_names in members.items():
+            for rate in rate_names:
+                kind, index = rate_index[rate]
+                if kind == "connection":
+                    rates = rates.at[index].set(p[parameter])
+                else:
+                    outflow = outflow.at[index].set(p[parameter])
+        return exit_age(network, t, rates, outflow)
 
     return Model(
         name=name or Path(network_file).stem,
         parameter_names=names,
         function=function,
-        defaults=defaults,
+        defaults={n: Parameter(start(n), min=0.0) for n in names},
         description=f"compartment network from {Path(network_file).name}",
     )
 
