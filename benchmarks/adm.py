@@ -11,7 +11,7 @@ theta in [0, 3] at 301 points by
                 for the batch), reported per curve;
 * ``rtdpy``     rtdpy.AD_cc (method of lines, scipy BDF) with nx = 200 and 400 nodes;
 * ``FiPy``      axialmix.reference.exit_age_fipy (backward Euler, central differences) with
-                its default max(200, Pe) cells and a step of 0.005 tau (0.01 with --quick).
+                its default max(200, Pe) cells and a step of 0.002 tau (0.01 with --quick).
 
 Errors are ``max |E - E_ref| / max E_ref`` against the extended-precision eigenfunction
 series (axialmix.analytic.highprecision, mpmath) computed here. rtdpy's grid is its own
@@ -43,7 +43,7 @@ from axialmix.reference import exit_age_fipy
 PECLET_NUMBERS = (0.1, 1.0, 10.0, 100.0, 1000.0)
 THETA = np.linspace(0.0, 3.0, 301)
 BATCH_SIZE = 100
-FIPY_STEP = 0.005  # theta: 600 backward-Euler steps per curve, several seconds each
+FIPY_STEP = 0.002  # theta: 1500 backward-Euler steps per curve (about 10 s each)
 
 
 def timed(function: Callable[[], object], repeats: int) -> tuple[float, float]:
