@@ -111,8 +111,8 @@ def _stderr_progress() -> ProgressCallback:
         if not interactive and decile == last_decile[0] and done < total:
             return
         last_decile[0] = decile
-        share = 100 * done / total
-        line = f"grid search: {done:,}/{total:,} points ({share:3.0f} %), best {best:.4g}"
+        share = (100 * done) // total
+        line = f"grid search: {done:,}/{total:,} points ({share:3d} %), best {best:.4g}"
         end = "\n" if (not interactive or done >= total) else ""
         sys.stderr.write(("\r" if interactive else "") + line + end)
         sys.stderr.flush()
@@ -135,9 +135,10 @@ def grid_search(
     curve: Curve | tuple,
     grids: Mapping[str, Sequence[float] | np.ndarray],
     loss: str = "mae",
-    chunk_size: int = 4096,
+    chunk_size: int = 1024,
     progress: bool | ProgressCallback = True,
     fixed: Mapping[str, float] | None = None,
+    tied: Mapping[str, str] | None = None,
     keep_losses: bool = True,
 ) -> GridResult:
     """Evaluate a model at every point of a Cartesian grid and keep the best.
@@ -156,6 +157,8 @@ def grid_search(
     - `progress`: ``True`` prints progress to stderr, ``False`` is silent, a callable gets
       ``(points done, points in all, best loss so far)`` after each chunk.
     - `fixed`: values for model parameters not searched (defaults: the model's own).
+    - `tied`: ``{name: other}``: parameter `name` takes the value of parameter `other` at
+      every point (e.g. ``{"k_r": "k_f"}``); tied names are not searched.
     - `keep_losses`: keep the loss at every point (``False`` saves memory on huge grids).
 
     **Returns:** a :class:`GridResult`.
@@ -182,10 +185,17 @@ def grid_search(
             f"(it has {', '.join(model.parameter_names)})"
         )
     fixed = dict(fixed or {})
+    tied = dict(tied or {})
+    for name, other in tied.items():
+        if name in grids or other not in model.parameter_names or name == other:
+            raise ValueError(
+                f"cannot tie {name!r} to {other!r}: tie a parameter that is not searched to "
+                "another parameter of the model"
+            )
     base = {
         name: float(fixed.get(name, model.defaults[name].value))
         for name in model.parameter_names
-        if name not in grids
+        if name not in grids and name not in tied
     }
     times, observed = _curve_arrays(curve)
     score = LOSSES[loss]
@@ -203,7 +213,10 @@ def grid_search(
         points = {name: axis[i] for name, axis, i in zip(names, axes_j, index, strict=True)}
 
         def one(point: dict[str, jax.Array]) -> jax.Array:
-            value = score(model(times_j, {**base, **point}) - observed_j)
+            values = {**base, **point}
+            for name, other in tied.items():
+                values[name] = values[other]
+            value = score(model(times_j, values) - observed_j)
             return jnp.where(jnp.isfinite(value), value, jnp.inf)
 
         return jnp.where(valid, jax.vmap(one)(points), jnp.inf)
@@ -236,8 +249,9 @@ def grid_search(
 
     best_index = np.unravel_index(best_flat, shape)
     best = {name: float(axis[i]) for name, axis, i in zip(names, axes, best_index, strict=True)}
-    all_values = {name: float(v) for name, v in base.items()}
-    all_values.update(best)
+    found = {**base, **best}
+    found.update({name: found[other] for name, other in tied.items()})
+    all_values = {name: found[name] for name in model.parameter_names}
     return GridResult(
         values=all_values,
         loss=best_loss,

@@ -1,0 +1,450 @@
+"""Reports of fits: readable tables, JSON records, plots, written atomically.
+
+Everything a user sees after ``axialmix fit`` comes from here: the per-curve parameter table
+(value, standard error, 95 % interval, and the grid search beside it when one was run), the
+summary table of several curves, the JSON record of a fit with plain statements about which
+parameters the curve determines, the equivalent axial dispersion of a compartment-network fit,
+and a two-panel PNG (data and fitted curve; residuals). Files are written to a temporary file
+in the target folder and moved into place with :func:`os.replace`, so an interrupted run never
+leaves a half-written file.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import tempfile
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy.optimize import brentq
+
+if TYPE_CHECKING:
+    from fitting.gridsearch import GridResult
+    from fitting.optimize import FitResult
+
+#: A 95 % interval wider than this multiple of the value (or reaching a bound) means the
+#: curve does not determine the parameter.
+UNDETERMINED_RELATIVE_ERROR = 0.5
+#: Correlations beyond this magnitude mean only a combination of two parameters is determined.
+STRONG_CORRELATION = 0.95
+#: Length of the source's blender 2 (m), used to express network fits as D_z and v.
+BLENDER_LENGTH_M = 0.31
+
+
+# --- atomic files -----------------------------------------------------------------------------
+
+
+def write_atomic(path: str | Path, write: Callable[[Any], None], binary: bool = False) -> Path:
+    """Write a file through a temporary file in the same folder and an atomic rename.
+
+    **Arguments:**
+
+    - `path`: the destination file.
+    - `write`: called with the open temporary file (text or binary) to fill it.
+    - `binary`: open the temporary file in binary mode.
+
+    **Returns:** the destination path.
+    """
+    path = Path(path)
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, "wb" if binary else "w", **({} if binary else {"newline": ""})) as f:
+            write(f)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(temporary, 0o666 & ~umask)  # mkstemp makes the file private; use the default
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_json(path: str | Path, data: Mapping[str, Any]) -> Path:
+    """Write `data` as indented JSON, atomically (see :func:`write_atomic`)."""
+    text = json.dumps(data, indent=2, allow_nan=False) + "\n"
+    return write_atomic(path, lambda f: f.write(text))
+
+
+def write_csv(path: str | Path, header: Sequence[str], rows: Sequence[Sequence[Any]]) -> Path:
+    """Write a CSV table with a header line, atomically (see :func:`write_atomic`)."""
+
+    def fill(f) -> None:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        writer.writerows(rows)
+
+    return write_atomic(path, fill)
+
+
+# --- numbers ------------------------------------------------------------------------------------
+
+
+def _finite(x: Any) -> float | None:
+    """A plain float, or None for missing, NaN and infinite numbers (JSON has no NaN)."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _number(x: Any, digits: int = 5) -> str:
+    value = _finite(x)
+    return "-" if value is None else f"{value:.{digits}g}"
+
+
+def text_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A plain-text table with columns padded to their widest cell.
+
+    **Arguments:**
+
+    - `header`: column titles.
+    - `rows`: rows of already formatted cells.
+
+    **Returns:** the table as lines joined by newlines (no trailing newline).
+    """
+    widths = [max(len(str(c)) for c in column) for column in zip(header, *rows, strict=True)]
+    line = "  ".join("-" * w for w in widths)
+
+    def render(cells: Sequence[str]) -> str:
+        first, *rest = cells
+        return "  ".join([f"{first:<{widths[0]}}", *(f"{c:>{w}}" for c, w in
+                                                       zip(rest, widths[1:], strict=True))])
+
+    return "\n".join([render(header), line, *(render(r) for r in rows)])
+
+
+# --- what a fit determines ----------------------------------------------------------------------
+
+
+def identifiability_statements(result: FitResult) -> list[str]:
+    """Plain sentences on which parameters the curve determines, from the fit's uncertainty.
+
+    A free parameter is called undetermined when its 95 % interval is undefined (singular
+    curvature), reaches zero for a positive parameter, or is wider than
+    ``±UNDETERMINED_RELATIVE_ERROR`` of the value; a pair is called confounded when its
+    correlation exceeds ``STRONG_CORRELATION`` in magnitude. These are statements about the
+    linearised (Gauss–Newton) uncertainty; a profile likelihood checks them more strictly.
+
+    **Arguments:**
+
+    - `result`: a :class:`~fitting.optimize.FitResult`.
+
+    **Returns:** a list of sentences; the last one summarises.
+    """
+    statements = []
+    undetermined = []
+    for name in result.free_names:
+        value = result.values[name]
+        error = _finite(result.stderr.get(name))
+        interval = result.ci95.get(name)
+        if error is None or interval is None:
+            statements.append(f"{name} is not identifiable: its standard error is undefined "
+                              "(the curve does not constrain it).")
+            undetermined.append(name)
+            continue
+        low, high = interval
+        relative = error / abs(value) if value else math.inf
+        if relative > UNDETERMINED_RELATIVE_ERROR or (low <= 0 < value):
+            statements.append(
+                f"{name} is poorly identifiable: {name} = {value:.4g} +/- {error:.3g} "
+                f"({100 * relative:.0f} %), 95 % interval [{low:.4g}, {high:.4g}]."
+            )
+            undetermined.append(name)
+    names = list(result.free_names)
+    correlation = np.asarray(result.correlation, dtype=float)
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            r = correlation[i, j] if correlation.shape == (len(names),) * 2 else math.nan
+            if math.isfinite(r) and abs(r) > STRONG_CORRELATION:
+                statements.append(
+                    f"{names[i]} and {names[j]} are strongly correlated (r = {r:+.3f}): the "
+                    "curve determines a combination of them, not each one."
+                )
+    if undetermined:
+        statements.append(
+            f"Not determined by this curve: {', '.join(undetermined)}; fix or tie them "
+            "(--fix, --tie) or add information to report them."
+        )
+    else:
+        limit = 100 * UNDETERMINED_RELATIVE_ERROR
+        statements.append("All fitted parameters are determined by this curve "
+                          f"(relative standard errors below {limit:.0f} %).")
+    return statements
+
+
+def _closed_closed_variance_ratio(peclet: float) -> float:
+    """sigma²/tau² of the closed–closed ADM (MODELS.md section 2)."""
+    return 2 / peclet - 2 / peclet**2 * (1 - math.exp(-peclet))
+
+
+def peclet_from_variance_ratio(variance_ratio: float) -> float:
+    """The closed–closed Peclet number whose ``sigma²/tau²`` equals the given ratio.
+
+    **Arguments:**
+
+    - `variance_ratio`: ``sigma² / tau²`` of a residence-time distribution, in (0, 1).
+
+    **Returns:** Pe (dimensionless), or NaN when the ratio is outside (0, 1).
+    """
+    if not 0 < variance_ratio < 1:
+        return math.nan
+    # The ratio falls monotonically from 1 (Pe -> 0) to 0 (Pe -> inf).
+    return brentq(lambda pe: _closed_closed_variance_ratio(pe) - variance_ratio, 1e-9, 1e9,
+                  xtol=1e-12, rtol=1e-12)
+
+
+def network_moments(model_name: str, values: Mapping[str, float]) -> tuple[float, float] | None:
+    """Mean and variance of the residence time of a fitted four-compartment network.
+
+    **Arguments:**
+
+    - `model_name`: the fitted model's name (only ``'four-compartment'`` is handled).
+    - `values`: fitted rates ``k_f, k_r, k_s, k_out`` (1/time).
+
+    **Returns:** ``(mean, variance)`` in time units, or ``None`` for other models.
+    """
+    if model_name != "four-compartment":
+        return None
+    from axialmix.network import four_compartment, residence_time_moments
+
+    network = four_compartment(*(float(values[n]) for n in ("k_f", "k_r", "k_s", "k_out")))
+    moments = residence_time_moments(network)
+    return float(moments.mean), float(moments.variance)
+
+
+def equivalent_dispersion(
+    mean: float, variance: float, length_m: float = BLENDER_LENGTH_M
+) -> dict[str, float | None]:
+    """The closed–closed ADM with the same mean and variance: tau, Pe, v and D_z.
+
+    Moment matching (MODELS.md section 2): ``tau`` = mean, Pe from
+    ``sigma²/tau² = 2/Pe - 2/Pe² (1 - e^{-Pe})``, ``v = L / tau``, ``D_z = v L / Pe``.
+
+    **Arguments:**
+
+    - `mean`: mean residence time (s).
+    - `variance`: variance of the residence time (s²).
+    - `length_m`: blender length L (m); the source's blender 2 by default.
+
+    **Returns:** ``{"tau_s", "peclet", "velocity_m_per_s", "dispersion_m2_per_s", "length_m"}``
+    (``None`` where undefined).
+    """
+    peclet = peclet_from_variance_ratio(variance / mean**2) if mean > 0 else math.nan
+    velocity = length_m / mean if mean > 0 else math.nan
+    dispersion = velocity * length_m / peclet if peclet > 0 else math.nan
+    return {
+        "tau_s": _finite(mean),
+        "peclet": _finite(peclet),
+        "velocity_m_per_s": _finite(velocity),
+        "dispersion_m2_per_s": _finite(dispersion),
+        "length_m": float(length_m),
+    }
+
+
+# --- tables and records -------------------------------------------------------------------------
+
+
+def fit_table(result: FitResult, grid: GridResult | None = None) -> str:
+    """The parameter table of one fit, with the grid search beside it when given.
+
+    **Arguments:**
+
+    - `result`: the gradient fit.
+    - `grid`: the grid search on the same curve and loss, or ``None``.
+
+    **Returns:** the table text (parameters, then loss, evaluations and time).
+    """
+    header = ["parameter", "value", "std. error", "95 % interval"]
+    if grid is not None:
+        header.append("grid search")
+    rows = []
+    for name, value in result.values.items():
+        setting = result.init_params[name]
+        interval = result.ci95.get(name)
+        if setting.expr is not None:
+            kind = f"= {setting.expr}"
+        elif not setting.vary:
+            kind = "fixed"
+        else:
+            kind = (f"[{_number(interval[0])}, {_number(interval[1])}]"
+                    if interval is not None else "-")
+        row = [name, _number(value, 6), _number(result.stderr.get(name), 3), kind]
+        if grid is not None:
+            row.append(_number(grid.values.get(name), 6))
+        rows.append(row)
+    rows.append(["loss (" + result.loss_name + ")", _number(result.loss, 5), "", ""]
+                + ([_number(grid.loss, 5)] if grid is not None else []))
+    rows.append(["evaluations", f"{result.n_evaluations:,}", "", ""]
+                + ([f"{grid.n_evaluations:,}"] if grid is not None else []))
+    rows.append(["time (s)", f"{result.wall_time:.3f}", "", ""]
+                + ([f"{grid.wall_time:.3f}"] if grid is not None else []))
+    rows.append(["converged", "yes" if result.converged else "no", "", ""]
+                + (["interrupted" if grid.interrupted else "complete"] if grid is not None
+                   else []))
+    title = f"{result.name or 'curve'}: model {result.model.name}, {result.n_points} points"
+    return title + "\n" + text_table(header, rows)
+
+
+def fit_record(
+    result: FitResult,
+    grid: GridResult | None = None,
+    source: str | None = None,
+    length_m: float = BLENDER_LENGTH_M,
+) -> dict[str, Any]:
+    """The JSON record of one fit.
+
+    **Arguments:**
+
+    - `result`: the gradient fit.
+    - `grid`: the grid search on the same curve, or ``None``.
+    - `source`: the data file.
+    - `length_m`: blender length for the equivalent dispersion of network fits (m).
+
+    **Returns:** a JSON-ready dict with ``model``, ``data``, ``source``, ``parameters``
+    (``{name: {value, stderr, ci95, vary, expr}}``), ``loss``, ``loss_name``, ``converged``,
+    ``message``, ``n_evaluations``, ``wall_time``, ``correlation``, ``aic``, ``bic``,
+    ``identifiability`` (sentences), ``equivalent_adm`` for network fits and ``grid_search``
+    when one was run.
+    """
+    base = result.to_dict()
+    parameters = {
+        name: {key: entry[key] for key in ("value", "stderr", "ci95", "vary", "expr")}
+        for name, entry in base["parameters"].items()
+    }
+    record: dict[str, Any] = {
+        "model": result.model.name,
+        "data": result.name,
+        "source": source,
+        "parameters": parameters,
+        "loss": base["loss"],
+        "loss_name": result.loss_name,
+        "converged": bool(result.converged),
+        "message": result.message,
+        "n_evaluations": int(result.n_evaluations),
+        "n_starts": int(result.n_starts),
+        "wall_time": float(result.wall_time),
+        "n_points": int(result.n_points),
+        "sse": base["sse"],
+        "aic": base["aic"],
+        "bic": base["bic"],
+        "correlation": base["correlation"],
+        "identifiability": identifiability_statements(result),
+    }
+    moments = network_moments(result.model.name, result.values)
+    if moments is not None:
+        record["equivalent_adm"] = equivalent_dispersion(*moments, length_m=length_m)
+    if grid is not None:
+        record["grid_search"] = grid.to_dict()
+    return record
+
+
+def summary_rows(records: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[list[Any]]]:
+    """Header and rows (plain values) of the summary of several fit records.
+
+    **Arguments:**
+
+    - `records`: records from :func:`fit_record`, all of the same model.
+
+    **Returns:** ``(header, rows)``: one row per curve with each parameter's value and
+    standard error, the loss, evaluations, time and convergence.
+    """
+    names = list(records[0]["parameters"]) if records else []
+    header = ["data"]
+    for name in names:
+        header += [name, f"{name}_stderr"]
+    header += ["loss", "n_evaluations", "wall_time_s", "converged"]
+    with_grid = any("grid_search" in r for r in records)
+    if with_grid:
+        header += ["grid_loss", "grid_n_evaluations"]
+    rows = []
+    for record in records:
+        row: list[Any] = [record["data"]]
+        for name in names:
+            entry = record["parameters"].get(name, {})
+            row += [entry.get("value"), entry.get("stderr")]
+        row += [record["loss"], record["n_evaluations"], round(record["wall_time"], 4),
+                record["converged"]]
+        if with_grid:
+            grid = record.get("grid_search") or {}
+            row += [grid.get("loss"), grid.get("n_evaluations")]
+        rows.append(row)
+    return header, rows
+
+
+def summary_table(records: Sequence[Mapping[str, Any]]) -> str:
+    """The readable summary table of several fits (value ± standard error per parameter)."""
+    names = list(records[0]["parameters"]) if records else []
+    with_grid = any("grid_search" in r for r in records)
+    header = ["data", *names, "loss", "evaluations", "time (s)", "converged"]
+    if with_grid:
+        header += ["grid loss", "grid evaluations"]
+    rows = []
+    for record in records:
+        row = [record["data"]]
+        for name in names:
+            entry = record["parameters"][name]
+            error = _finite(entry.get("stderr"))
+            row.append(_number(entry["value"], 4)
+                       + ("" if error is None or not entry.get("vary", True) and
+                          entry.get("expr") is None else f" +/- {error:.2g}"))
+        row += [_number(record["loss"], 4), f"{record['n_evaluations']:,}",
+                f"{record['wall_time']:.3f}", "yes" if record["converged"] else "no"]
+        if with_grid:
+            grid = record.get("grid_search") or {}
+            row += [_number(grid.get("loss"), 4), f"{grid.get('n_evaluations', 0):,}"]
+        rows.append(row)
+    return text_table(header, rows)
+
+
+# --- plot -----------------------------------------------------------------------------------------
+
+
+def plot_fit(path: str | Path, result: FitResult, grid: GridResult | None = None) -> Path:
+    """Save a two-panel PNG: data with the fitted curve (top), residuals (bottom).
+
+    **Arguments:**
+
+    - `path`: the PNG file to write (atomically).
+    - `result`: the gradient fit (its model is evaluated on a fine time grid).
+    - `grid`: a grid search on the same curve, drawn as a dashed curve when given.
+
+    **Returns:** the path.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    time = np.asarray(result.time)
+    observed = np.asarray(result.observed)
+    fine = np.linspace(0.0, float(time[-1]) * 1.05, 400)[1:]
+    model = result.model
+    curve = np.asarray(model(fine, {n: result.values[n] for n in model.parameter_names}))
+    figure = Figure(figsize=(7, 6), layout="constrained")
+    top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[3, 1.3])
+    top.plot(time, observed, "o", color="black", label="data")
+    top.plot(fine, curve, "-", color="tab:blue",
+             label=f"fit ({model.name}, {result.loss_name} = {result.loss:.3g})")
+    if grid is not None:
+        grid_curve = np.asarray(model(fine, {n: grid.values[n] for n in model.parameter_names}))
+        top.plot(fine, grid_curve, "--", color="tab:orange",
+                 label=f"grid search ({grid.loss_name} = {grid.loss:.3g})")
+    unit = getattr(result, "time_unit", None) or "s"
+    top.set_ylabel(f"E(t) (1/{unit})")
+    top.set_title(f"{result.name or 'curve'}: model {model.name}", fontsize=10)
+    top.legend(fontsize=8)
+    residual = np.asarray(result.predicted) - observed
+    bottom.axhline(0.0, color="grey", linewidth=0.8)
+    bottom.plot(time, residual, "o-", color="tab:blue", markersize=4)
+    bottom.set_ylabel("residual\n(model - data)")
+    bottom.set_xlabel(f"time ({unit})")
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=100)
+    return write_atomic(path, lambda f: f.write(buffer.getvalue()), binary=True)
