@@ -12,9 +12,18 @@ import numpy as np
 
 from axialmix.particles._random import multivariate_hypergeometric, next_uniform
 
-SPECIES_BITS = 8
-"""An identity-engine slot holds ``(particle number << SPECIES_BITS) | species``."""
-SPECIES_MASK = (1 << SPECIES_BITS) - 1
+MAX_SPECIES = 256
+"""Most species the identity engine handles."""
+
+
+def species_bits(n_species: int) -> int:
+    """Bits reserved for the species in an identity-engine slot ``(number << bits) | species``."""
+    bits = 1
+    while (1 << bits) < n_species:
+        bits += 1
+    return bits
+
+
 FEED = -1
 """Source code of an identity event for a particle fed in."""
 WEIR = -1
@@ -83,21 +92,24 @@ def advance_counts(
         progress[0] += 1
 
 
+species_bits_of = numba.njit(cache=True)(species_bits)
+
+
 @numba.njit(inline="always")
-def _tally_species(moved, first, n, tally):
+def _tally_species(moved, first, n, tally, mask):
     # Species counts of moved[first:first + n]. With two species a register sum of the
     # species bits avoids the serial read-modify-write chain of tally[species] += 1.
     if tally.size == 2:
         ones = 0
         for q in range(first, first + n):
-            ones += moved[q] & SPECIES_MASK
+            ones += moved[q] & mask
         tally[0] = n - ones
         tally[1] = ones
         return
     for s in range(tally.size):
         tally[s] = 0
     for q in range(first, first + n):
-        tally[moved[q] & SPECIES_MASK] += 1
+        tally[moved[q] & mask] += 1
 
 
 @numba.njit(cache=True)
@@ -124,12 +136,13 @@ def advance_identities(
 ):
     """Advance individual particles by up to ``n_steps`` steps (identity engine).
 
-    ``slots[offsets[i]:offsets[i+1]]`` holds the particles of compartment i, each coded as
-    ``(particle number << 8) | species``. Selection is a partial Fisher-Yates shuffle of the
-    compartment's slots (cost per particle moved, not held); arrivals overwrite the slots
-    just handed out, which balance guarantees are exactly as many. ``counts`` is kept
-    up to date move by move. Moves of particles whose species is ``tracked`` are written to
-    ``events`` as ``(particle, step, from, to)``; the kernel stops early, before a step
+    ``slots[offsets[i]:offsets[i+1]]`` holds the particles of compartment i, each coded
+    as ``(particle number << bits) | species`` (:func:`species_bits`). Selection is a
+    partial Fisher-Yates shuffle of the compartment's slots (cost per particle moved, not
+    held); arrivals overwrite the slots just handed out, which balance guarantees are
+    exactly as many. ``counts`` is kept up to date move by move. Moves of particles whose
+    species is ``tracked`` are written to ``events`` as ``(particle, step, from, to)``;
+    the kernel stops early, before a step
     whose events might not fit. ``progress`` holds ``[steps done, events written, next
     particle number]``.
 
@@ -140,6 +153,8 @@ def advance_identities(
     exact bounded integer.
     """
     n_compartments, n_species = counts.shape
+    bits = species_bits_of(n_species)
+    mask = (1 << bits) - 1
     track_any = False
     for s in range(tracked.size):
         if tracked[s]:
@@ -185,7 +200,7 @@ def advance_identities(
                     for q in range(n_moved):
                         slots[w + q] = moved[pointer + q]
                     write[target] = w + n_moved
-                _tally_species(moved, pointer, n_moved, tally)
+                _tally_species(moved, pointer, n_moved, tally, mask)
                 pointer += n_moved
                 for s in range(n_species):
                     counts[i, s] -= tally[s]
@@ -197,10 +212,10 @@ def advance_identities(
                     continue
                 for p in range(pointer - count[e], pointer):
                     code = moved[p]
-                    species = code & SPECIES_MASK
+                    species = code & mask
                     if tracked[species]:
                         n = progress[1]
-                        events[n, 0] = code >> SPECIES_BITS
+                        events[n, 0] = code >> bits
                         events[n, 1] = global_step
                         events[n, 2] = i
                         events[n, 3] = target
@@ -211,7 +226,7 @@ def advance_identities(
                 for _ in range(feed_counts[step, q, s]):
                     number = progress[2]
                     progress[2] = number + 1
-                    slots[write[j]] = (number << SPECIES_BITS) | s
+                    slots[write[j]] = (number << bits) | s
                     write[j] += 1
                     counts[j, s] += 1
                     if track_any and tracked[s]:

@@ -199,7 +199,12 @@ def _apportion(total: int, weights: np.ndarray) -> np.ndarray:
 
 class _CountEngine:
     def __init__(
-        self, network: ParticleNetwork, counts: np.ndarray, tracked: np.ndarray, seed: int
+        self,
+        network: ParticleNetwork,
+        counts: np.ndarray,
+        tracked: np.ndarray,
+        seed: int,
+        particle_numbers: int,
     ) -> None:
         self.network = network
         self.counts = counts
@@ -241,11 +246,21 @@ class _CountEngine:
 
 class _IdentityEngine:
     def __init__(
-        self, network: ParticleNetwork, counts: np.ndarray, tracked: np.ndarray, seed: int
+        self,
+        network: ParticleNetwork,
+        counts: np.ndarray,
+        tracked: np.ndarray,
+        seed: int,
+        particle_numbers: int,
     ) -> None:
         self.network = network
         self.counts = counts
         self.tracked = tracked
+        # 32-bit slot codes while every particle number of the run fits (a billion with two
+        # species): half the memory traffic of the random selections, about 30 % faster.
+        self.bits = _kernels.species_bits(counts.shape[1])
+        fits = particle_numbers << self.bits <= np.iinfo(np.int32).max
+        code_type = np.int32 if fits else np.int64
         self.table = network.outgoing_table()
         self.inlets = network.inlets().astype(np.int64)
         n_species = counts.shape[1]
@@ -255,8 +270,8 @@ class _IdentityEngine:
         species = np.repeat(
             np.tile(np.arange(n_species, dtype=np.int8), network.n_compartments), counts.ravel()
         )
-        self.slots = np.arange(self.offsets[-1], dtype=np.int64)
-        np.left_shift(self.slots, _kernels.SPECIES_BITS, out=self.slots)
+        self.slots = np.arange(self.offsets[-1], dtype=code_type)
+        np.left_shift(self.slots, self.bits, out=self.slots)
         np.bitwise_or(self.slots, species, out=self.slots)
         del species
         # [steps done, events in the buffer, next particle number]
@@ -264,7 +279,7 @@ class _IdentityEngine:
         block = max(_EVENT_BLOCK, 2 * (network.moves_per_step + network.throughput))
         self.buffer = np.zeros((block if tracked.any() else 0, 4), np.int64)
         self.blocks: list[np.ndarray] = []
-        self.moved = np.empty(network.moves_per_step, np.int64)
+        self.moved = np.empty(network.moves_per_step, code_type)
         self.picks = np.empty(int(network.handed_out.max(initial=0)), np.int64)
         self.write = np.empty(network.n_compartments, np.int64)
         self.generator = xoshiro_state(seed)
@@ -309,11 +324,12 @@ class _IdentityEngine:
     def tag(self, compartment: int, particles: int, species: int, rng: np.random.Generator) -> None:
         lo, hi = self.offsets[compartment], self.offsets[compartment + 1]
         codes = self.slots[lo:hi]
-        candidates = np.nonzero((codes & _kernels.SPECIES_MASK) != species)[0]
+        mask = (1 << self.bits) - 1
+        candidates = np.nonzero((codes & mask) != species)[0]
         chosen = rng.choice(candidates, size=particles, replace=False)
-        old_species = codes[chosen] & _kernels.SPECIES_MASK
-        numbers = codes[chosen] >> _kernels.SPECIES_BITS
-        codes[chosen] = (numbers << _kernels.SPECIES_BITS) | species
+        old_species = codes[chosen] & mask
+        numbers = codes[chosen] >> self.bits
+        codes[chosen] = (numbers << self.bits) | species
         self.counts[compartment] -= np.bincount(old_species, minlength=self.counts.shape[1])
         self.counts[compartment, species] += particles
         if self.tracked[species]:
@@ -402,11 +418,10 @@ def simulate(
     if tracked.any() and engine != "identity":
         raise ValueError("tracked_species needs the identity engine.")
     if engine == "identity":
-        if n_species > _kernels.SPECIES_MASK + 1:
-            raise ValueError(
-                f"the identity engine handles at most {_kernels.SPECIES_MASK + 1} species."
-            )
-        if network.n_particles + network.throughput * steps >= 1 << (63 - _kernels.SPECIES_BITS):
+        if n_species > _kernels.MAX_SPECIES:
+            raise ValueError(f"the identity engine handles at most {_kernels.MAX_SPECIES} species.")
+        numbers = network.n_particles + network.throughput * steps
+        if numbers >= 1 << (63 - _kernels.species_bits(n_species)):
             raise ValueError("too many particles over the run for the identity engine.")
     schedule = check_feed_schedule(network, feed, steps, n_species)
     reports = _report_schedule(steps, report_every, report_steps)
@@ -415,7 +430,9 @@ def simulate(
     rng = np.random.default_rng([seed, 1])
     seed_generator(seed)
     engine_type = _CountEngine if engine == "count" else _IdentityEngine
-    state = engine_type(network, counts, tracked, seed)
+    state = engine_type(
+        network, counts, tracked, seed, network.n_particles + network.throughput * steps
+    )
 
     recorded_steps = [0]
     recorded_counts = [counts.copy()]
