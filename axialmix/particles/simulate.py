@@ -408,6 +408,13 @@ def simulate(
             raise ValueError(
                 f"tracer species {tracer.species} is not below the number of species {n_species}."
             )
+        inlets = network.inlets()
+        too_big = _apportion(tracer.particles, network.feed[inlets]) > network.holdups[inlets]
+        if too_big.any():
+            raise ValueError(
+                f"tracer pulse of {tracer.particles} particles does not fit in the inlet "
+                f"compartment(s) holding {network.holdups[inlets].tolist()} particles."
+            )
     if tracked_species is None:
         tracked_species = (tracer.species,) if tracer is not None and engine == "identity" else ()
     tracked = np.zeros(n_species, np.bool_)
