@@ -1,5 +1,7 @@
 """The mean-field network model: conservation, RTD invariants, batch mixing, gradients."""
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -100,6 +102,29 @@ def test_exit_age_matches_independent_scipy_expm():
     uniform = np.linspace(0.0, 20.0, 61)
     np.testing.assert_allclose(exit_age(network, uniform)[1:], scipy_exit_age(network, uniform)[1:],
                                rtol=1e-10, atol=1e-14)
+
+
+@pytest.mark.parametrize("n_tanks", [1, 2, 5])
+def test_tanks_in_series_without_backflow_give_the_erlang_rtd(n_tanks):
+    times = np.linspace(0.0, 20.0, 61)
+    tau = 4.0
+    rate = n_tanks / tau
+    erlang = rate**n_tanks * times ** (n_tanks - 1) * np.exp(-rate * times) / math.factorial(
+        n_tanks - 1)
+    np.testing.assert_allclose(exit_age(tanks_in_series(n_tanks, tau), times), erlang,
+                               rtol=1e-11, atol=1e-15)
+
+
+def test_exit_age_vmaps_over_rates():
+    network = branched_network()
+    times = np.linspace(0.0, 20.0, 61)
+    scales = np.array([0.5, 1.0, 2.0])
+    batched = jax.vmap(lambda c: exit_age(network, times, network.rates * c,
+                                          network.outflow_rates * c))(jnp.asarray(scales))
+    for row, c in zip(np.asarray(batched), scales, strict=True):
+        # Scaling every rate by c is a change of time unit: E_c(t) = c E(c t).
+        np.testing.assert_allclose(row, c * scipy_exit_age(network, c * times), rtol=1e-10,
+                                   atol=1e-14)
 
 
 @pytest.mark.parametrize(

@@ -318,7 +318,7 @@ def exit_age(
     **Arguments:**
 
     - `network`: an open network (inlet and active outlet).
-    - `times`: output times (time units), strictly increasing; E = 0 for t ≤ 0.
+    - `times`: output times (time units), strictly increasing; E = 0 for t < 0.
     - `rates`, `outflow_rates`: optional rate arrays (see :func:`generator_matrix`).
 
     **Returns:**
@@ -338,7 +338,7 @@ def exit_age(
     else:
         generator = generator_matrix(network, rates, outflow_rates)
         states = _continuous_states(generator, split, times, concrete)
-        values = jnp.where(times > 0, states @ _outflow_vector(network, outflow_rates), 0.0)
+        values = jnp.where(times >= 0, states @ _outflow_vector(network, outflow_rates), 0.0)
     return values.reshape(shape)
 
 
@@ -635,7 +635,7 @@ def four_compartment_exit_age(
 
     **Arguments:**
 
-    - `t`: output times (time units), strictly increasing; E = 0 for t ≤ 0.
+    - `t`: output times (time units), strictly increasing; E = 0 for t < 0.
     - `k_f`, `k_r`, `k_s`, `k_out`: scalar rates (1/time), non-negative.
 
     **Returns:**
@@ -650,7 +650,7 @@ def four_compartment_exit_age(
     times, concrete, shape = _times_array(t)
     generator = four_compartment_generator(k_f, k_r, k_s, k_out)
     states = _continuous_states(generator, jnp.zeros(4).at[0].set(1.0), times, concrete)
-    return jnp.where(times > 0, jnp.asarray(k_out, dtype=float) * states[:, 3], 0.0).reshape(shape)
+    return jnp.where(times >= 0, jnp.asarray(k_out, dtype=float) * states[:, 3], 0.0).reshape(shape)
 
 
 def _require_open(network: CompartmentNetwork) -> None:
