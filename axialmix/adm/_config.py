@@ -99,15 +99,17 @@ class SolverConfig(eqx.Module):
         return default_configs()[min(index, len(bounds))]
 
 
-# Resolution levels: (largest Peclet number of the level, settings). Cells follow the
-# fourth-order remainder of the Richardson-combined error, about C(Pe) / N^4 with C growing
-# like Pe^3 at large Pe; steps follow the pulse width sqrt(2 / Pe); the horizon is where the
-# slowest mode alone is left (low Pe) or the pulse has left the mixer (high Pe).
+# Resolution levels: (largest Peclet number of the level, settings). The edges avoid the
+# round numbers users try first, because the curve jumps by ~1e-4 of its peak at an edge.
+# Cells follow the fourth-order remainder of the Richardson-combined error, about
+# C(Pe) / N^4 with C growing like Pe^3 at large Pe; steps follow the pulse width
+# sqrt(2 / Pe); the horizon is where the slowest mode alone is left (low Pe) or the pulse
+# has left the mixer (high Pe).
 _LEVELS: tuple[tuple[float, SolverConfig], ...] = (
-    (3.0, SolverConfig(cells=12, max_step=0.05, first_step=2e-4, horizon=5.0)),
-    (30.0, SolverConfig(cells=32, max_step=0.04, first_step=1e-3, horizon=6.0)),
-    (150.0, SolverConfig(cells=96, max_step=0.02, first_step=1e-3, horizon=3.0)),
-    (1000.0, SolverConfig(cells=320, max_step=0.01, first_step=1e-3, horizon=2.0)),
+    (2.5, SolverConfig(cells=12, max_step=0.05, first_step=2e-4, horizon=5.0)),
+    (25.0, SolverConfig(cells=32, max_step=0.04, first_step=1e-3, horizon=6.0)),
+    (180.0, SolverConfig(cells=104, max_step=0.02, first_step=1e-3, horizon=3.0)),
+    (1100.0, SolverConfig(cells=340, max_step=0.01, first_step=1e-3, horizon=2.0)),
     (math.inf, SolverConfig(cells=800, max_step=0.005, first_step=1e-3, horizon=1.6)),
 )
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -30,8 +32,13 @@ def _initial_state(config: SolverConfig, inlet: str) -> jax.Array:
     return jnp.concatenate(parts)[:, None]
 
 
+@partial(jax.custom_jvp, nondiff_argnums=(0, 1))
 def node_curves(config: SolverConfig, inlet: str, peclet: jax.Array):
     """Outlet value and its theta-derivative at the time nodes of `config`.
+
+    The Peclet derivative is computed in forward mode inside the JVP rule (with a unit
+    tangent, alongside the solve), so reverse mode keeps only the sensitivities at the nodes
+    instead of the states of every step (and of every resolution level under ``lax.switch``).
 
     **Arguments:**
 
@@ -43,6 +50,10 @@ def node_curves(config: SolverConfig, inlet: str, peclet: jax.Array):
 
     ``(values, slopes)`` at ``config.time_nodes()``: E and dE/dtheta, or F and dF/dtheta.
     """
+    return _node_curves(config, inlet, peclet)
+
+
+def _node_curves(config: SolverConfig, inlet: str, peclet: jax.Array):
     lower, diagonal, upper = grid_operator(config.grids, peclet)
     weights = _grid_weights(config)
     ends = np.cumsum(config.grids) - 1  # index of each grid's outlet cell
@@ -63,6 +74,15 @@ def node_curves(config: SolverConfig, inlet: str, peclet: jax.Array):
     if inlet == "step":
         values = values + 1.0
     return values, slopes
+
+
+@node_curves.defjvp
+def _node_curves_jvp(config, inlet, primals, tangents):
+    (peclet,), (peclet_dot,) = primals, tangents
+    curves, sensitivities = jax.jvp(
+        lambda pe: _node_curves(config, inlet, pe), (peclet,), (jnp.ones_like(peclet),)
+    )
+    return curves, jax.tree.map(lambda s: s * peclet_dot, sensitivities)
 
 
 def _locate(nodes: np.ndarray, theta: jax.Array):
