@@ -398,3 +398,22 @@ def test_constant_feed_is_exact_and_feeder_feed_follows_feeder_rates():
     assert share == pytest.approx(np.mean(rates[:, 1] / rates.sum(axis=1)), abs=0.0015)
     with pytest.raises(ValueError, match="sum to 1"):
         particles.constant_feed(network, [0.7, 0.4], 10)
+
+
+def test_identity_history_first_stay_in_inlet_is_geometric(identity_tracer_run):
+    # A particle leaves compartment C1 during a step with probability L_1 / N_1 (particles
+    # handed out over those held), whatever happened before: its first stay, counted from
+    # the tagging at the start of the pulse step, is geometric.
+    network, result = identity_tracer_run
+    leave = network.handed_out[0] / network.holdups[0]
+    events = result.events  # sorted by particle, then step, the tagging first
+    _, first = np.unique(events[:, 0], return_index=True)
+    assert np.all(events[first, 2] == -2) and np.all(events[first + 1, 2] == 0)
+    stays = events[first + 1, 1] - events[first, 1] + 1
+    for p in events[first[:5], 0]:  # the same as the per-particle history
+        assert result.history(int(p))[1][0] == stays[np.searchsorted(events[first, 0], p)]
+    top = 40
+    observed = np.bincount(np.minimum(stays, top), minlength=top + 1)[1:]
+    k = np.arange(1, top)
+    expected = np.append(leave * (1 - leave) ** (k - 1), (1 - leave) ** (top - 1)) * stays.size
+    assert _chi_square_p_value(observed, expected) > 1e-3
