@@ -183,10 +183,10 @@ def advance_identities(
                 picks[k] = base + k + int(next_uniform(generator) * (held - k))
             for k in range(handed):
                 r = picks[k]
-                chosen = slots[r]
+                # Fisher-Yates swap, except that the chosen particle is not written back to
+                # slot base + k: the front slots are overwritten by arrivals below.
+                moved[pointer] = slots[r]
                 slots[r] = slots[base + k]
-                slots[base + k] = chosen
-                moved[pointer] = chosen
                 pointer += 1
         for i in range(n_compartments):
             write[i] = offsets[i]
