@@ -29,7 +29,9 @@ imports even where an optional forward model is missing.
 
 from __future__ import annotations
 
+import functools
 import importlib
+import math
 import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -147,6 +149,9 @@ def _lookup(module: str, name: str) -> Callable:
 def moment_estimates(curve: Curve) -> tuple[float, float]:
     """Mean residence time and variance of a measured curve (trapezoid rule).
 
+    Negative samples (noise around a subtracted baseline) are set to zero first, so the
+    moments of a noisy curve stay those of a density.
+
     **Arguments:**
 
     - `curve`: a measured curve (need not be normalised).
@@ -155,21 +160,34 @@ def moment_estimates(curve: Curve) -> tuple[float, float]:
 
     ``(mean, variance)`` in the curve's time unit and its square.
     """
-    from axialmix.rtd import moments
-
-    mean, variance = moments(curve.time, curve.value)
+    # The same trapezoid moments as axialmix.rtd.moments, in NumPy: start values are computed
+    # per curve in Python, where eager JAX dispatch would dominate the cost of a fit.
+    time = curve.time
+    density = np.clip(curve.value, 0.0, None)
+    area = np.trapezoid(density, time)
+    mean = np.trapezoid(time * density, time) / area
+    variance = np.trapezoid((time - mean) ** 2 * density, time) / area
     return float(mean), float(variance)
+
+
+@functools.cache
+def _compiled_peclet_from_moments() -> Callable:
+    """:func:`axialmix.analytic.peclet_from_moments`, jitted (NaN outside its range)."""
+    import jax
+
+    return jax.jit(_lookup("axialmix.analytic", "peclet_from_moments"))
 
 
 def _adm_guess(curve: Curve) -> dict[str, float]:
     mean, variance = moment_estimates(curve)
-    peclet_from_moments = _lookup("axialmix.analytic", "peclet_from_moments")
-    return {"tau": mean, "peclet": float(peclet_from_moments(mean, variance))}
+    # NaN (keep the default) for a variance no closed-closed ADM has (ratio >= 1).
+    peclet = float(_compiled_peclet_from_moments()(mean, variance))
+    return {"tau": mean, "peclet": peclet}
 
 
 def _tanks_guess(curve: Curve) -> dict[str, float]:
     mean, variance = moment_estimates(curve)
-    return {"tau": mean, "n_tanks": mean**2 / variance}
+    return {"tau": mean, "n_tanks": mean**2 / variance if variance > 0 else math.nan}
 
 
 def _adm_closed_function(t, p):

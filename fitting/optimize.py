@@ -346,7 +346,7 @@ def _lbfgs(objective: Callable, u0, options: _Options):
     solver = optax.lbfgs(
         memory_size=options.memory_size,
         linesearch=optax.scale_by_zoom_linesearch(
-            max_linesearch_steps=30, initial_guess_strategy="one"
+            max_linesearch_steps=20, initial_guess_strategy="one"
         ),
     )
     value0, grad0 = jax.value_and_grad(objective)(u0)
@@ -425,8 +425,8 @@ def _adam(objective: Callable, u0, options: _Options, max_steps: int):
 def _compiled_solver(model: Model, layout: _Layout, options: _Options, batch: str):
     """The jitted multi-start solver for one model, layout and option set.
 
-    `batch`: ``'one'`` (one curve), ``'curves'`` (vmapped over curves) or ``'bases'`` (vmapped
-    over fixed-parameter values, for profiles).
+    `batch`: ``'curves'`` (vmapped over curves; one curve is a batch of one) or ``'bases'``
+    (vmapped over fixed-parameter values, for profiles).
     """
     loss_function = LOSSES[options.loss]
 
@@ -509,8 +509,6 @@ def _compiled_solver(model: Model, layout: _Layout, options: _Options, batch: st
             "newton_step": newton_step,
         }
 
-    if batch == "one":
-        return jax.jit(solve)
     if batch == "curves":
         return jax.jit(jax.vmap(solve, in_axes=(0, None, 0, 0, 0, 0)))
     return jax.jit(jax.vmap(solve, in_axes=(0, None, 0, None, None, None)))
@@ -880,7 +878,7 @@ def fit(
     seed: int = 0,
     max_steps: int | None = None,
     tol: float = 1e-10,
-    ftol: float = 1e-13,
+    ftol: float = 1e-10,
     xtol: float = 1e-6,
     warmup_steps: int = 100,
     learning_rate: float = 0.05,
@@ -921,12 +919,13 @@ def fit(
     options = _options(loss, method, max_steps, tol, ftol, xtol, warmup_steps, learning_rate,
                        n_starts)
     prepared = _prepare(model, curve, params, weights, n_starts, seed)
-    solver = _compiled_solver(prepared.model, prepared.layout, options, "one")
+    # One curve is a batch of one: fit and fit_many share the compiled solver.
+    solver = _compiled_solver(prepared.model, prepared.layout, options, "curves")
     began = _time.perf_counter()
-    out = solver(jnp.asarray(prepared.starts), jnp.asarray(prepared.warm),
-                 jnp.asarray(prepared.base), jnp.asarray(curve.time), jnp.asarray(curve.value),
-                 jnp.asarray(prepared.weights))
-    out = jax.block_until_ready(out)
+    out = solver(jnp.asarray(prepared.starts[None]), jnp.asarray(prepared.warm),
+                 jnp.asarray(prepared.base[None]), jnp.asarray(curve.time[None]),
+                 jnp.asarray(curve.value[None]), jnp.asarray(prepared.weights[None]))
+    out = {k: v[0] for k, v in jax.block_until_ready(out).items()}
     wall_time = _time.perf_counter() - began
     return _result(prepared, prepared.layout, options, out, wall_time)
 
@@ -943,7 +942,7 @@ def fit_many(
     seed: int = 0,
     max_steps: int | None = None,
     tol: float = 1e-10,
-    ftol: float = 1e-13,
+    ftol: float = 1e-10,
     xtol: float = 1e-6,
     warmup_steps: int = 100,
     learning_rate: float = 0.05,

@@ -336,7 +336,7 @@ def profile_likelihood(
     values = np.asarray(values, dtype=float)
     params = result.params.copy()
     params[name] = params[name].replace(vary=False)
-    options = _options(result.loss_name, "lbfgs", None, 1e-10, 1e-13, 1e-6, 0, 0.05, 1)
+    options = _options(result.loss_name, "lbfgs", None, 1e-10, 1e-10, 1e-6, 0, 0.05, 1)
     curve = _profile_curve(result)
     prepared = _prepare(result.model, curve, params, result.weights, 1, 0)
     layout = prepared.layout
