@@ -21,7 +21,7 @@ median wall time of several repeats with ``block_until_ready``; FiPy is run once
 per curve).
 
 Run: ``python benchmarks/adm.py`` (a few minutes on 2 cores), ``--quick`` for a smoke run,
-``--pe 10 100`` to select Peclet numbers.
+``--pe 10 100`` to select Peclet numbers, ``--fipy-step 0.005`` for a coarser (faster) FiPy run.
 """
 
 import argparse
@@ -84,7 +84,9 @@ fv_curve = jax.jit(lambda tau, pe: exit_age(THETA_JAX, tau, pe))
 fv_value_and_grad = jax.jit(jax.value_and_grad(_squared_error), static_argnums=2)
 
 
-def benchmark_peclet(peclet: float, repeats: int, quick: bool) -> tuple[list[dict], dict]:
+def benchmark_peclet(
+    peclet: float, repeats: int, quick: bool, fipy_step: float
+) -> tuple[list[dict], dict]:
     """Rows of the accuracy/speed table and the promised ratios for one Peclet number."""
     from rtdpy import AD_cc
 
@@ -134,7 +136,6 @@ def benchmark_peclet(peclet: float, repeats: int, quick: bool) -> tuple[list[dic
         add(f"rtdpy AD_cc nx={nx}", run_s, None, model.exitage, reference[: own_grid.size])
         rtdpy_seconds[nx] = run_s
 
-    fipy_step = 0.01 if quick else FIPY_STEP
     fipy_cells = max(200, math.ceil(peclet))  # exit_age_fipy's default: cell Pe <= 1
     start = time.perf_counter()
     fipy_curve = exit_age_fipy(THETA, 1.0, peclet, n_cells=fipy_cells, dt=fipy_step)
@@ -167,7 +168,11 @@ def main() -> None:
         "--quick", action="store_true", help="fewer repeats, coarse FiPy step, Pe 10 and 100 only"
     )
     parser.add_argument("--pe", type=float, nargs="+", help="Peclet numbers to run")
+    parser.add_argument(
+        "--fipy-step", type=float, help=f"FiPy time step in units of tau (default {FIPY_STEP})"
+    )
     args = parser.parse_args()
+    fipy_step = args.fipy_step or (0.01 if args.quick else FIPY_STEP)
     peclets = args.pe or ((10.0, 100.0) if args.quick else PECLET_NUMBERS)
     repeats = 3 if args.quick else 15
 
@@ -184,7 +189,7 @@ def main() -> None:
     print(header)
     print("-" * len(header))
     for peclet in peclets:
-        rows, ratios = benchmark_peclet(peclet, repeats, args.quick)
+        rows, ratios = benchmark_peclet(peclet, repeats, args.quick, fipy_step)
         for row in rows:
             error = "-" if row["error"] is None else f"{row['error']:.2e}"
             compile_text = format_seconds(row["compile"]) if row["compile"] else "-"
