@@ -933,7 +933,7 @@ def fit(
 def fit_many(
     model: Model | str,
     curves: Sequence[Curve | tuple],
-    params: Mapping[str, Parameter | float] | None = None,
+    params: Mapping[str, Parameter | float] | Sequence[Mapping | None] | None = None,
     *,
     loss: str = "sse",
     weights: Sequence[Sequence[float] | None] | None = None,
@@ -955,9 +955,9 @@ def fit_many(
 
     **Arguments:**
 
-    - `model`, `params`, `loss`, `method`, `n_starts`, `seed`, `max_steps`, `tol`, `ftol`,
-      `xtol`, `warmup_steps`, `learning_rate`: as in :func:`fit` (curve i uses seed
-      ``seed + i``).
+    - `model`, `loss`, `method`, `n_starts`, `seed`, `max_steps`, `tol`, `ftol`, `xtol`,
+      `warmup_steps`, `learning_rate`: as in :func:`fit` (curve i uses seed ``seed + i``).
+    - `params`: as in :func:`fit`, for all curves, or a list with one setting per curve.
     - `curves`: :class:`~fitting.io.Curve` objects or ``(time, values)`` pairs.
     - `weights`: one weight array (or ``None``) per curve, or ``None``.
 
@@ -973,8 +973,13 @@ def fit_many(
     per_curve_weights = weights if weights is not None else [None] * len(curves)
     if len(per_curve_weights) != len(curves):
         raise ValueError(f"{len(per_curve_weights)} weight arrays for {len(curves)} curves")
-    prepared = [_prepare(model, c, params, w, n_starts, seed + i)
-                for i, (c, w) in enumerate(zip(curves, per_curve_weights, strict=True))]
+    per_curve_params = (params if isinstance(params, Sequence) and not isinstance(params, str)
+                        else [params] * len(curves))
+    if len(per_curve_params) != len(curves):
+        raise ValueError(f"{len(per_curve_params)} parameter settings for {len(curves)} curves")
+    prepared = [_prepare(model, c, p, w, n_starts, seed + i)
+                for i, (c, p, w) in enumerate(zip(curves, per_curve_params, per_curve_weights,
+                                                  strict=True))]
     layout = prepared[0].layout
     for other in prepared[1:]:
         if dataclasses.replace(other.layout, scale=layout.scale) != layout:
