@@ -1,0 +1,175 @@
+"""The ``axialmix fit`` command (fitting.fitcli through fitting.cli.main)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from fitting.cli import main
+
+EXAMPLES = Path(__file__).parents[1] / "examples" / "data"
+EXAMPLE_FILES = sorted(EXAMPLES.glob("*.csv"))
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# The four-compartment fits compile a vmapped multi-start solver (tens of seconds of CPU the
+# first time in a process), so the tests that run them are marked slow (CI runs them).
+FOUR_COMPARTMENT = ["--model", "four-compartment", "--fix", "k_out=0.8", "--starts", "2"]
+
+
+def _check_record(path: Path, model: str) -> dict:
+    record = json.loads(path.read_text())
+    assert record["model"] == model
+    for key in ("parameters", "loss", "converged", "n_evaluations", "identifiability"):
+        assert key in record
+    for entry in record["parameters"].values():
+        assert set(entry) >= {"value", "stderr", "ci95"}
+    assert record["n_evaluations"] > 0 and record["loss"] >= 0
+    assert record["identifiability"] and all(isinstance(s, str) for s in record["identifiability"])
+    return record
+
+
+def _check_png(path: Path) -> None:
+    data = path.read_bytes()
+    assert data[:8] == PNG_SIGNATURE
+    assert data[12:16] == b"IHDR" and len(data) > 5_000
+
+
+def test_examples_exist():
+    assert len(EXAMPLE_FILES) == 5
+
+
+@pytest.mark.slow
+def test_fit_folder_gives_summary_table_json_csv_and_plots(tmp_path, capsys):
+    out = tmp_path / "results"
+    status = main(["fit", str(EXAMPLES), *FOUR_COMPARTMENT, "--out", str(out)])
+    captured = capsys.readouterr()
+    assert status == 0
+    for path in EXAMPLE_FILES:
+        assert path.stem in captured.out
+        record = _check_record(out / f"{path.stem}.json", "four-compartment")
+        assert record["parameters"]["k_out"]["value"] == 0.8
+        assert record["parameters"]["k_out"]["stderr"] is None  # fixed, not fitted
+        equivalent = record["equivalent_adm"]
+        assert equivalent["tau_s"] > 0 and equivalent["peclet"] > 0
+        _check_png(out / f"{path.stem}.png")
+    for column in ("k_f", "k_r", "k_s", "loss", "evaluations"):
+        assert column in captured.out
+    assert f"[{len(EXAMPLE_FILES)}/{len(EXAMPLE_FILES)}]" in captured.err  # progress
+    summary = json.loads((out / "summary.json").read_text())
+    assert [f["data"] for f in summary["fits"]] == [p.stem for p in EXAMPLE_FILES]
+    with open(out / "summary.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["data"] for r in rows] == [p.stem for p in EXAMPLE_FILES]
+    assert {"k_f", "k_f_stderr", "loss", "n_evaluations"} <= set(rows[0])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("path", EXAMPLE_FILES, ids=lambda p: p.stem)
+def test_fit_each_example_file_prints_table_and_writes_json_and_png(path, tmp_path, capsys):
+    out = tmp_path / "results"
+    status = main(["fit", str(path), *FOUR_COMPARTMENT, "--out", str(out)])
+    captured = capsys.readouterr()
+    assert status == 0
+    for word in ("value", "std. error", "95 % interval", "loss (sse)", "evaluations", "time (s)",
+                 "equivalent closed-closed ADM"):
+        assert word in captured.out
+    record = _check_record(out / f"{path.stem}.json", "four-compartment")
+    # The table shows the same value as the record.
+    assert f"{record['parameters']['k_f']['value']:.6g}" in captured.out
+    _check_png(out / f"{path.stem}.png")
+    assert sorted(p.name for p in out.iterdir()) == [f"{path.stem}.json", f"{path.stem}.png"]
+
+
+def test_fit_with_grid_shows_both_side_by_side(tmp_path, capsys):
+    out = tmp_path / "results"
+    status = main(["fit", str(EXAMPLE_FILES[0]), "--model", "tanks", "--loss", "mae", "--grid",
+                   "--out", str(out)])
+    captured = capsys.readouterr()
+    assert status == 0
+    assert "grid search" in captured.out and "grid search:" in captured.err
+    record = _check_record(out / f"{EXAMPLE_FILES[0].stem}.json", "tanks")
+    grid = record["grid_search"]
+    assert grid["n_evaluations"] == 21 * 21 and grid["loss_name"] == "mae"
+    # The grid is centred on the gradient optimum, so the gradient fit is at least as good.
+    assert record["loss"] <= grid["loss"] * (1 + 1e-9)
+    _check_png(out / f"{EXAMPLE_FILES[0].stem}.png")
+
+
+@pytest.mark.slow
+def test_fix_and_tie_are_honoured(tmp_path, capsys):
+    out = tmp_path / "results"
+    status = main(["fit", str(EXAMPLE_FILES[0]), "--model", "four-compartment", "--fix",
+                   "k_out=0.8", "--tie", "k_r=k_f", "--starts", "1", "--out", str(out)])
+    assert status == 0
+    record = json.loads((out / f"{EXAMPLE_FILES[0].stem}.json").read_text())
+    parameters = record["parameters"]
+    assert parameters["k_r"]["value"] == pytest.approx(parameters["k_f"]["value"], rel=1e-12)
+    assert parameters["k_r"]["expr"] == "k_f"
+    assert "= k_f" in capsys.readouterr().out
+
+
+GOOD = "time_s,concentration\n0,0\n1,0.2\n2,0.5\n3,0.3\n4,0.1\n5,0.02\n"
+BAD_FILES = {
+    "bad_columns": ("a,b,c\n1,2,3\n2,3,4\n3,4,5\n4,5,6\n5,6,7\n", None),
+    "non_numeric": ("time_s,concentration\n0,0\n1,0.2\n2,abc\n3,0.3\n4,0.1\n5,0\n", 4),
+    "nan": ("time_s,concentration\n0,0\n1,0.2\n2,nan\n3,0.3\n4,0.1\n5,0\n", 4),
+    "negative": ("time_s,concentration\n0,0\n1,0.2\n2,-0.5\n3,0.3\n4,0.1\n5,0\n", 4),
+    "not_increasing": ("time_s,concentration\n0,0\n1,0.2\n3,0.5\n2,0.3\n4,0.1\n5,0\n", 5),
+    "too_few": ("time_s,concentration\n0,0\n1,0.2\n2,0.1\n", None),
+    "all_zero": ("time_s,concentration\n0,0\n1,0\n2,0\n3,0\n4,0\n5,0\n", None),
+    "missing_cell": ("time_s,concentration\n0,0\n1,0.2\n2\n3,0.3\n4,0.1\n5,0\n", 4),
+}
+
+
+def _assert_one_line_error(captured, path: Path, row: int | None) -> None:
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1, captured.err
+    assert lines[0].startswith("axialmix fit: error: ")
+    assert str(path) in lines[0]
+    if row is not None:
+        assert f"{path}:{row}: " in lines[0]
+    assert "Traceback" not in captured.err
+    assert captured.out == ""
+
+
+@pytest.mark.parametrize("case", sorted(BAD_FILES))
+def test_bad_input_prints_one_line_exits_2_and_writes_nothing(case, tmp_path, capsys):
+    text, row = BAD_FILES[case]
+    good = tmp_path / "good.csv"
+    good.write_text(GOOD)
+    bad = tmp_path / f"{case}.csv"
+    bad.write_text(text)
+    out = tmp_path / "results"
+    # The good file comes first: nothing may be written for it either.
+    status = main(["fit", str(good), str(bad), "--model", "tanks", "--out", str(out)])
+    assert status == 2
+    _assert_one_line_error(capsys.readouterr(), bad, row)
+    assert not out.exists()
+
+
+def test_missing_file_is_one_line_error(tmp_path, capsys):
+    missing = tmp_path / "nowhere.csv"
+    out = tmp_path / "results"
+    status = main(["fit", str(missing), "--out", str(out)])
+    assert status == 2
+    _assert_one_line_error(capsys.readouterr(), missing, None)
+    assert not out.exists()
+
+
+def test_bad_folder_file_and_options_are_one_line_errors(tmp_path, capsys):
+    folder = tmp_path / "data"
+    folder.mkdir()
+    shutil.copy(EXAMPLE_FILES[0], folder / "a.csv")
+    (folder / "b.csv").write_text(BAD_FILES["negative"][0])
+    out = tmp_path / "results"
+    assert main(["fit", str(folder), "--out", str(out)]) == 2
+    _assert_one_line_error(capsys.readouterr(), folder / "b.csv", 4)
+    for options in (["--model", "nonsense"], ["--fix", "k_f"], ["--fix", "zeta=1"],
+                    ["--model", "four-compartment", "--tie", "k_r=k_q"], ["--starts", "0"]):
+        assert main(["fit", str(EXAMPLE_FILES[0]), *options, "--out", str(out)]) == 2
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("axialmix fit: error: ")
+    assert not out.exists()
