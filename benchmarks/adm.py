@@ -17,8 +17,9 @@ Errors are ``max |E - E_ref| / max E_ref`` against the extended-precision eigenf
 series (axialmix.analytic.highprecision, mpmath) computed here. rtdpy's grid is its own
 ``arange(0, 3, 0.01)`` (300 points, the first 300 of ours), and its error is measured on that
 grid. Timings: one warm-up call (for JAX the jit compilation, reported separately), then the
-median wall time of several repeats with ``block_until_ready``; FiPy is run once (seconds
-per curve).
+median wall time of several repeats with ``block_until_ready``; the exact and FV timings
+run interleaved, round by round, so that their ratios see the same machine load; FiPy is
+run once (seconds per curve).
 
 Run: ``python benchmarks/adm.py`` (a few minutes on 2 cores), ``--quick`` for a smoke run,
 ``--pe 10 100`` to select Peclet numbers, ``--fipy-step 0.005`` for a coarser (faster) FiPy run.
@@ -46,22 +47,34 @@ BATCH_SIZE = 100
 FIPY_STEP = 0.002  # theta: 1500 backward-Euler steps per curve (about 10 s each)
 
 
-def timed(function: Callable[[], object], repeats: int) -> tuple[float, float]:
-    """Return (extra seconds of the first call, median seconds of `repeats` further calls).
+def timed(
+    functions: dict[str, Callable[[], object]], repeats: int
+) -> dict[str, tuple[float, float]]:
+    """Time several functions in interleaved rounds, so that they share the machine's load.
 
-    The first call's extra time is its duration minus the median: for a jitted function,
-    the compilation.
+    Each function is called once first (for a jitted function: compilation), then
+    `repeats` rounds call every function once in turn.
+
+    **Returns:**
+
+    For each name: (extra seconds of the first call over the median, median seconds).
     """
-    start = time.perf_counter()
-    jax.block_until_ready(function())
-    first = time.perf_counter() - start
-    samples: list[float] = []
-    for _ in range(repeats):
+    first: dict[str, float] = {}
+    for name, function in functions.items():
         start = time.perf_counter()
         jax.block_until_ready(function())
-        samples.append(time.perf_counter() - start)
-    median = statistics.median(samples) if samples else first
-    return max(first - median, 0.0), median
+        first[name] = time.perf_counter() - start
+    samples: dict[str, list[float]] = {name: [] for name in functions}
+    for _ in range(repeats):
+        for name, function in functions.items():
+            start = time.perf_counter()
+            jax.block_until_ready(function())
+            samples[name].append(time.perf_counter() - start)
+    result = {}
+    for name in functions:
+        median = statistics.median(samples[name]) if samples[name] else first[name]
+        result[name] = (max(first[name] - median, 0.0), median)
+    return result
 
 
 def peak_error(curve: np.ndarray, reference: np.ndarray) -> float:
@@ -97,22 +110,27 @@ def benchmark_peclet(
         error = None if curve is None else peak_error(curve, own_reference)
         rows.append(dict(method=method, error=error, seconds=seconds, compile=compile_s))
 
-    compile_s, exact_s = timed(lambda: exact_curve(1.0, peclet), repeats)
-    add("exact (Bromwich)", exact_s, compile_s, exact_curve(1.0, peclet))
-
-    compile_s, fv_forward_s = timed(lambda: fv_curve(1.0, peclet), repeats)
-    add("FV forward", fv_forward_s, compile_s, fv_curve(1.0, peclet))
-
     # Gradient of a fit's loss with respect to (tau, Pe) by reverse mode: with the default
     # settings (resolution level chosen from the traced Pe at run time, as in a fit) and with
     # the level fixed in advance by SolverConfig.for_peclet.
     target = jnp.asarray(reference) * 1.01
     params = jnp.array([1.0, peclet])
-    compile_s, fv_grad_s = timed(lambda: fv_value_and_grad(params, target, None), repeats)
-    add("FV fwd+grad (default)", fv_grad_s, compile_s)
     fixed = SolverConfig.for_peclet(peclet)
-    compile_s, fv_grad_fixed_s = timed(lambda: fv_value_and_grad(params, target, fixed), repeats)
-    add("FV fwd+grad (fixed level)", fv_grad_fixed_s, compile_s)
+    timings = timed(
+        {
+            "exact": lambda: exact_curve(1.0, peclet),
+            "forward": lambda: fv_curve(1.0, peclet),
+            "grad": lambda: fv_value_and_grad(params, target, None),
+            "grad_fixed": lambda: fv_value_and_grad(params, target, fixed),
+        },
+        repeats,
+    )
+    add("exact (Bromwich)", timings["exact"][1], timings["exact"][0], exact_curve(1.0, peclet))
+    add("FV forward", timings["forward"][1], timings["forward"][0], fv_curve(1.0, peclet))
+    add("FV fwd+grad (default)", timings["grad"][1], timings["grad"][0])
+    add("FV fwd+grad (fixed level)", timings["grad_fixed"][1], timings["grad_fixed"][0])
+    exact_s, fv_forward_s = timings["exact"][1], timings["forward"][1]
+    fv_grad_s, fv_grad_fixed_s = timings["grad"][1], timings["grad_fixed"][1]
 
     rng = np.random.default_rng(0)
     taus = jnp.asarray(rng.uniform(0.8, 1.2, BATCH_SIZE))
@@ -120,7 +138,9 @@ def benchmark_peclet(
     # One resolution level for the whole batch (the FV solver's advice for vmap).
     batch_config = SolverConfig.for_peclet(float(pes.max()))
     batch = jax.jit(jax.vmap(lambda tau, pe: exit_age(THETA_JAX, tau, pe, config=batch_config)))
-    compile_s, batch_s = timed(lambda: batch(taus, pes), max(1, repeats // 4))
+    ((compile_s, batch_s),) = timed(
+        {"batch": lambda: batch(taus, pes)}, max(1, repeats // 4)
+    ).values()
     add(f"FV vmap {BATCH_SIZE}, per curve", batch_s / BATCH_SIZE, compile_s)
 
     rtdpy_seconds = {}
@@ -129,7 +149,7 @@ def benchmark_peclet(
         def rtdpy_curve(nx=nx):
             return AD_cc(tau=1.0, peclet=peclet, dt=0.01, time_end=3.0, nx=nx)
 
-        first_s, run_s = timed(rtdpy_curve, 1 if quick else 3)
+        ((_, run_s),) = timed({"rtdpy": rtdpy_curve}, 1 if quick else 3).values()
         model = rtdpy_curve()
         own_grid = np.asarray(model.time)
         assert np.allclose(own_grid, THETA[: own_grid.size], rtol=0, atol=1e-12)
