@@ -87,9 +87,10 @@ def _node_curves_jvp(config, inlet, primals, tangents):
 
 def _locate(nodes: np.ndarray, theta: jax.Array):
     """Interval index, its width and the local coordinate in [0, 1] of each theta."""
-    index = jnp.clip(jnp.searchsorted(nodes, theta, side="right") - 1, 0, len(nodes) - 2)
-    left = jnp.asarray(nodes)[index]
-    width = jnp.asarray(np.diff(nodes))[index]
+    nodes = jnp.asarray(nodes)
+    index = jnp.clip(jnp.searchsorted(nodes, theta, side="right") - 1, 0, nodes.shape[-1] - 2)
+    left = nodes[index]
+    width = jnp.diff(nodes)[index]
     local = jnp.clip((theta - left) / width, 0.0, 1.0)
     return index, width, local
 
@@ -109,7 +110,7 @@ def _hermite(nodes, values, slopes, theta):
 
 def _hermite_integral(nodes, values, slopes, theta):
     """Integral from 0 to theta of the cubic Hermite interpolant."""
-    widths = jnp.asarray(np.diff(nodes))
+    widths = jnp.diff(jnp.asarray(nodes))
     pieces = widths * (values[:-1] + values[1:]) / 2 + widths**2 * (slopes[:-1] - slopes[1:]) / 12
     cumulative = jnp.concatenate([jnp.zeros(1), jnp.cumsum(pieces)])
     index, width, s = _locate(nodes, theta)
@@ -140,14 +141,20 @@ def _safe_exprel_integral(rate, span):
 def _evaluate(config: SolverConfig, kinds: tuple[str, ...], thetas, peclet: jax.Array):
     """The dimensionless curves `kinds` (exit_age, step, ramp) at `thetas` for one config."""
     nodes = config.time_nodes()
-    horizon = float(nodes[-1])
-    solved = {}
+    inlets = _inlets(kinds)
+    curves = {inlet: node_curves(config, inlet, peclet) for inlet in inlets}
+    return _interpolate(nodes, float(nodes[-1]), curves, kinds, thetas)
+
+
+def _inlets(kinds: tuple[str, ...]) -> tuple[str, ...]:
+    return tuple(sorted({"pulse" if kind == "exit_age" else "step" for kind in kinds}))
+
+
+def _interpolate(nodes, horizon, curves, kinds, thetas):
+    """Evaluate the node curves at `thetas`, continuing them beyond the horizon."""
     results = []
     for kind, theta in zip(kinds, thetas, strict=True):
-        inlet = "pulse" if kind == "exit_age" else "step"
-        if inlet not in solved:
-            solved[inlet] = node_curves(config, inlet, peclet)
-        values, slopes = solved[inlet]
+        values, slopes = curves["pulse" if kind == "exit_age" else "step"]
         inside = jnp.clip(theta, 0.0, horizon)
         beyond = jnp.maximum(theta - horizon, 0.0)
         last, last_slope = values[-1], slopes[-1]
@@ -171,14 +178,120 @@ def _evaluate(config: SolverConfig, kinds: tuple[str, ...], thetas, peclet: jax.
     return tuple(results)
 
 
+# -- default resolution chosen at run time from a traced Peclet number ----------------------
+#
+# Every level's node curves are padded to a common length, so one program holds them all.
+# Under jit and grad, lax.switch runs only the selected level. Under vmap a switch would run
+# every level for every element; the custom batching rule below runs each level once for the
+# whole batch and skips (lax.cond on an unbatched predicate) the levels no element needs.
+# The Peclet derivative comes from a custom JVP whose sensitivities are computed in forward
+# mode by the same dispatch, so reverse mode stores no solver states.
+
+
+def _padded_nodes(config: SolverConfig, length: int) -> np.ndarray:
+    nodes = config.time_nodes()
+    extra = nodes[-1] + np.arange(1, length - nodes.size + 1)
+    return np.concatenate([nodes, extra])
+
+
+def _level_table():
+    configs = default_configs()
+    length = max(config.time_nodes().size for config in configs)
+    nodes = np.stack([_padded_nodes(config, length) for config in configs])
+    horizons = np.asarray([config.time_nodes()[-1] for config in configs])
+    return configs, length, nodes, horizons
+
+
+def _level_index(peclet):
+    bounds = jnp.asarray(peclet_level_bounds())
+    return jnp.searchsorted(bounds, peclet, side="left")
+
+
+def _level_solution(config, length, inlets, peclet, with_sensitivity):
+    """Padded node curves of one level (and their Peclet derivatives when asked)."""
+
+    def solve(pe):
+        out = []
+        for inlet in inlets:
+            values, slopes = _node_curves(config, inlet, pe)
+            pad = length - values.shape[0]
+            out.append(jnp.pad(values, (0, pad), mode="edge"))
+            out.append(jnp.pad(slopes, (0, pad), mode="edge"))
+        return tuple(out)
+
+    if not with_sensitivity:
+        return solve(peclet)
+    curves, sensitivities = jax.jvp(solve, (peclet,), (jnp.ones_like(peclet),))
+    return curves + sensitivities
+
+
+def _make_dispatch(inlets: tuple[str, ...], with_sensitivity: bool):
+    configs, length, _, _ = _level_table()
+    branches = [
+        partial(_level_solution, config, length, inlets, with_sensitivity=with_sensitivity)
+        for config in configs
+    ]
+
+    @jax.custom_batching.custom_vmap
+    def dispatch(peclet):
+        return jax.lax.switch(_level_index(peclet), branches, peclet)
+
+    @dispatch.def_vmap
+    def dispatch_batched(axis_size, in_batched, peclet):
+        (batched,) = in_batched
+        if not batched:
+            out = jax.lax.switch(_level_index(peclet), branches, peclet)
+            return out, tuple(False for _ in out)
+        index = _level_index(peclet)
+        shapes = jax.eval_shape(branches[0], peclet[0])
+        out = tuple(jnp.zeros((axis_size, *s.shape), s.dtype) for s in shapes)
+        for level, branch in enumerate(branches):
+            chosen = index == level
+            solved = jax.lax.cond(
+                jnp.any(chosen),
+                lambda pe, branch=branch: jax.vmap(branch)(pe),
+                lambda pe: tuple(jnp.zeros((axis_size, *s.shape), s.dtype) for s in shapes),
+                peclet,
+            )
+            out = tuple(
+                jnp.where(chosen[:, None], new, old) for new, old in zip(solved, out, strict=True)
+            )
+        return out, tuple(True for _ in out)
+
+    return dispatch
+
+
+_DISPATCH = {}
+
+
+def _dispatch(inlets: tuple[str, ...], with_sensitivity: bool):
+    key = (inlets, with_sensitivity)
+    if key not in _DISPATCH:
+        _DISPATCH[key] = _make_dispatch(inlets, with_sensitivity)
+    return _DISPATCH[key]
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _default_curves(inlets, peclet):
+    return _dispatch(inlets, False)(peclet)
+
+
+@_default_curves.defjvp
+def _default_curves_jvp(inlets, primals, tangents):
+    (peclet,), (peclet_dot,) = primals, tangents
+    both = _dispatch(inlets, True)(peclet)
+    half = len(both) // 2
+    return both[:half], tuple(s * peclet_dot for s in both[half:])
+
+
 def dimensionless_curves(
     kinds: tuple[str, ...], thetas: tuple[jax.Array, ...], peclet: jax.Array, config
 ) -> tuple[jax.Array, ...]:
     """Dimensionless exit age, step response or ramp response curves at given theta.
 
     With an explicit `config` that config is used. Otherwise a concrete `peclet` selects its
-    default resolution level in Python, and a traced one selects it at run time with
-    ``lax.switch`` (under ``vmap`` every level is then evaluated).
+    default resolution level in Python, and a traced one selects it at run time (see the
+    dispatch above: only the needed levels run, under jit, grad and vmap alike).
 
     **Arguments:**
 
@@ -194,11 +307,14 @@ def dimensionless_curves(
     thetas = tuple(thetas)
     if config is not None:
         return _evaluate(config, kinds, thetas, peclet)
-    bounds = peclet_level_bounds()
-    configs = default_configs()
     if not isinstance(peclet, jax.core.Tracer):
-        index = int(np.searchsorted(bounds, float(peclet), side="left"))
-        return _evaluate(configs[index], kinds, thetas, peclet)
-    index = jnp.searchsorted(jnp.asarray(bounds), peclet, side="left")
-    branches = [(lambda th, pe, c=c: _evaluate(c, kinds, th, pe)) for c in configs]
-    return jax.lax.switch(index, branches, thetas, peclet)
+        index = int(np.searchsorted(peclet_level_bounds(), float(peclet), side="left"))
+        return _evaluate(default_configs()[index], kinds, thetas, peclet)
+    _, _, all_nodes, horizons = _level_table()
+    index = _level_index(peclet)
+    inlets = _inlets(kinds)
+    flat = _default_curves(inlets, peclet)
+    curves = {inlet: (flat[2 * i], flat[2 * i + 1]) for i, inlet in enumerate(inlets)}
+    nodes = jnp.asarray(all_nodes)[index]
+    horizon = jnp.asarray(horizons)[index]
+    return _interpolate(nodes, horizon, curves, kinds, thetas)
