@@ -726,6 +726,18 @@ class FitResult:
             "wall_time": self.wall_time,
         }
 
+    def identifiability(self):
+        """Poorly determined parameter combinations (see :mod:`fitting.uncertainty`)."""
+        from fitting.uncertainty import identifiability
+
+        return identifiability(self)
+
+    def profile(self, name: str, values: Sequence[float] | None = None, **options: Any):
+        """Profile of the loss along `name` (:func:`fitting.uncertainty.profile_likelihood`)."""
+        from fitting.uncertainty import profile_likelihood
+
+        return profile_likelihood(self, name, values, **options)
+
     def to_json(self, **kwargs: Any) -> str:
         """:meth:`to_dict` as a JSON string."""
         return json.dumps(self.to_dict(), **kwargs)
