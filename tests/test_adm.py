@@ -23,7 +23,7 @@ from axialmix.analytic import (
 
 PECLET_NUMBERS = (0.1, 1.0, 10.0, 100.0, 1000.0)
 # Level edges of the default resolution (both sides of each) and values in between.
-PECLET_EDGES = (0.01, 3.0, 3.0001, 30.0, 30.0001, 150.0, 150.0001, 1000.0)
+PECLET_EDGES = (0.01, 2.5, 2.5001, 25.0, 25.0001, 180.0, 180.0001, 1300.0, 1300.01, 3000.0)
 THETA = np.linspace(0.0, 3.0, 301)
 # Long window for moments: E decays like exp(-theta) at Pe -> 0, so 40 tau leaves < 1e-17.
 LONG_THETA = np.linspace(0.0, 40.0, 40001)

@@ -26,10 +26,18 @@ Design (chosen for accuracy at every Peclet number at a small, predictable cost)
   times; beyond the last simulated time the curve continues with its final decay rate
   (the slowest eigenmode). F comes from a step solve; any sampled inlet is convolved with E
   exactly as a sum of step and ramp responses.
-* **Resolution**: a few static resolution levels (:class:`SolverConfig`) are chosen from the
-  Peclet number: in Python when it is concrete, at run time by ``lax.switch`` when it is
-  traced (only the selected level runs under jit and grad). Under ``vmap`` every level is
-  evaluated, so batches should pass ``config=SolverConfig.for_peclet(max_peclet)``.
+* **Resolution**: five static resolution levels (:class:`SolverConfig`) are chosen from the
+  Peclet number: in Python when it is concrete, at run time when it is traced. Under jit and
+  grad ``lax.switch`` runs only the selected level; under vmap a custom batching rule runs
+  each level that some batch element needs once for the whole batch (``lax.cond`` skips the
+  others). Passing ``config=SolverConfig.for_peclet(max_peclet)`` fixes one level (smooth
+  in Pe everywhere; the default curve jumps by up to ~1e-4 of the peak at a level edge).
+  Default accuracy: max |E - E_exact| <= 1e-3 of the peak (typically 1e-5 to 6e-4) for
+  Pe from 0.01 to about 4000.
+* **Derivatives**: the Peclet sensitivities of the node curves are computed in forward mode
+  inside a custom JVP, so reverse mode stores no solver states and costs about two forward
+  solves; jacfwd and Hessians work too. Derivatives are those of the discrete solution, so
+  they agree with finite differences of the same solver to round-off.
 """
 
 from axialmix.adm._config import SolverConfig
