@@ -21,7 +21,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
@@ -314,7 +313,7 @@ def profile_likelihood(
 
     A :class:`Profile`.
     """
-    from fitting.optimize import _compiled_solver, _options, _prepare
+    from fitting.optimize import _compiled_solver, _options, _prepare, _run_solver
 
     if name not in result.free_names:
         raise ValueError(f"{name!r} is not a free parameter of this fit "
@@ -345,8 +344,8 @@ def profile_likelihood(
     bases[:, index] = values
     starts = np.tile(prepared.starts, (len(values), 1, 1))
     solver = _compiled_solver(prepared.model, layout, options, "bases")
-    out = solver(jnp.asarray(starts), jnp.asarray(prepared.warm), jnp.asarray(bases),
-                 jnp.asarray(curve.time), jnp.asarray(curve.value), jnp.asarray(result.weights))
+    out, _, _ = _run_solver(solver, starts, prepared.warm, bases, curve.time, curve.value,
+                            result.weights)
     predicted = np.asarray(out["predicted"])
     sse = np.sum(result.weights * (predicted - curve.value) ** 2, axis=1)
     converged = np.isin(np.asarray(out["status"]), (0, 1, 5))
