@@ -333,7 +333,7 @@ def network_model(
         for i, c in enumerate(network.connections)
     }
     rate_index.update({
-        _identifier(f"k_out_{o.name}"): ("outflow", j) for j, o in enumerate(network.outlets)
+        _identifier(f"k_out_{o.compartment}"): ("outflow", j) for j, o in enumerate(network.outlets)
     })
     groups = dict(groups) if groups is not None else {}
     for group, members in groups.items():

@@ -205,3 +205,40 @@ def test_equivalent_dispersion_of_a_four_compartment_fit(four_compartment_tied):
     assert equivalent["chain"]["velocity"] == pytest.approx((k_f - k_r) * 0.31 / 2, abs=1e-15)
     assert equivalent["chain"]["axial_dispersion"] == pytest.approx((k_f + k_r) * 0.31**2 / 8)
     assert equivalent["moments"]["tau"] > 0
+
+
+def test_fit_many_pads_curves_of_different_lengths_with_zero_weights(linear_fits):
+    observed, _, _ = linear_fits
+    short = 20
+    # Same padded shape as the fixture's batch, so the compiled solver is reused.
+    results = fit_many(LINEAR, [(TIME, observed), (TIME[:short], observed[:short])])
+    design = _basis(TIME[:short])
+    estimate = np.linalg.lstsq(design, observed[:short], rcond=None)[0]
+    padded = results[1]
+    assert padded.n_points == short and padded.dof == short - 3
+    assert padded.residuals.shape == (short,)
+    for i, name in enumerate("abc"):
+        assert padded.values[name] == pytest.approx(estimate[i], rel=0, abs=1e-6)
+
+
+def test_network_file_model_reproduces_the_four_compartment_curve(tmp_path):
+    from axialmix.network import four_compartment
+    from fitting.models import network_model
+
+    path = tmp_path / "four.json"
+    four_compartment(2.0, 1.0, 0.5, 1.5).to_json(path)
+    every_rate = network_model(path)
+    assert "k_out_C4" in every_rate.parameter_names
+    grouped = network_model(path, groups={
+        "k_f": ["k_C1_C2", "k_C3_C4"], "k_r": ["k_C2_C1", "k_C4_C3"],
+        "k_s": ["k_C1_C3", "k_C3_C1", "k_C2_C4", "k_C4_C2"], "k_out": ["k_out_C4"],
+    })
+    assert grouped.parameter_names == ("k_f", "k_r", "k_s", "k_out")
+    time = np.linspace(0.0, 10.0, 25)
+    rates = {"k_f": 0.7, "k_r": 0.2, "k_s": 0.9, "k_out": 0.4}
+    np.testing.assert_allclose(grouped(time, rates),
+                               four_compartment_exit_age(time, *rates.values()), rtol=1e-10,
+                               atol=1e-14)
+    np.testing.assert_allclose(every_rate(time, every_rate.parameters().valuesdict()),
+                               four_compartment_exit_age(time, 2.0, 1.0, 0.5, 1.5), rtol=1e-10,
+                               atol=1e-14)
