@@ -1,6 +1,6 @@
 """Speed and memory of the two particle engines, and their agreement.
 
-    /work/venv/bin/python benchmarks/particles.py [--quick]
+    python benchmarks/particles.py [--quick]
 
 Cases (MODELS.md section 4 quotes the source's FORTRAN: about 8,000 CPU s for the
 1,000,000-particle batch V-blender, 51 CPU s for 10,000 particles in 250 compartments):
