@@ -280,3 +280,9 @@ def test_fit_with_the_finite_volume_model_recovers_exact_parameters():
     assert result.converged, result.message
     assert result.values["tau"] == pytest.approx(40.0, rel=1e-3)
     assert result.values["peclet"] == pytest.approx(25.0, rel=1e-2)
+
+
+@pytest.mark.parametrize("function", [exit_age, step_response])
+def test_non_increasing_times_raise_value_error_naming_t(function):
+    with pytest.raises(ValueError, match="t must be strictly increasing"):
+        function(np.array([0.0, 2.0, 1.0]), 1.0, 10.0)

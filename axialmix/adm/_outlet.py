@@ -19,7 +19,7 @@ __all__ = ["dimensionless_parameters", "exit_age", "outlet_response", "step_resp
 
 
 def _check_parameters(t: ArrayLike, tau: ArrayLike, peclet: ArrayLike, config) -> None:
-    require_finite("t", t)
+    require_increasing_times("t", t)
     require_positive("tau", tau)
     require_positive("peclet", peclet)
     for name, value in (("tau", tau), ("peclet", peclet)):
@@ -42,7 +42,8 @@ def exit_age(
 
     **Arguments:**
 
-    - `t`: times (any unit, any order and shape); times ``<= 0`` give 0.
+    - `t`: times (any unit; a scalar or a strictly increasing 1-D array); times ``<= 0``
+      give 0.
     - `tau`: space time ``L / v`` in the same unit (positive scalar).
     - `peclet`: Peclet number ``v L / D_z`` (positive scalar).
     - `config`: solver settings; None picks them from `peclet` (see :class:`SolverConfig`).
@@ -67,7 +68,8 @@ def step_response(
 
     **Arguments:**
 
-    - `t`: times (any unit, any order and shape); times ``<= 0`` give 0.
+    - `t`: times (any unit; a scalar or a strictly increasing 1-D array); times ``<= 0``
+      give 0.
     - `tau`: space time ``L / v`` in the same unit (positive scalar).
     - `peclet`: Peclet number ``v L / D_z`` (positive scalar).
     - `config`: solver settings; None picks them from `peclet`.
@@ -101,7 +103,7 @@ def outlet_response(
 
     **Arguments:**
 
-    - `t`: output times (any order and shape).
+    - `t`: output times (a scalar or a strictly increasing 1-D array).
     - `tau`: space time ``L / v`` in the same unit (positive scalar).
     - `peclet`: Peclet number ``v L / D_z`` (positive scalar).
     - `inlet_times`: sample times of the inlet signal, strictly increasing (1-D).
