@@ -6,8 +6,24 @@ import argparse
 import sys
 
 
+class _UsageError(Exception):
+    """A command-line usage error, already reported on one line."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with usage errors on one line (``axialmix fit: error: ...``), exit status 2.
+
+    ``--help`` still prints the full usage. Sub-command parsers inherit the class.
+    """
+
+    def error(self, message: str):
+        print(f"{self.prog}: error: {message}", file=sys.stderr)
+        raise _UsageError(message)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    """The ``axialmix`` parser with its ``simulate`` and ``fit`` sub-commands."""
+    parser = _Parser(
         prog="axialmix",
         description="Residence-time models of continuous powder mixers.",
     )
@@ -30,7 +46,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the process exit status."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError:
+        return 2
     return int(args.func(args) or 0)
 
 

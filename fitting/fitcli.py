@@ -2,7 +2,7 @@
 
     axialmix fit FILE_OR_FOLDER... --model adm|adm-fv|adm-open|tanks|four-compartment|NET.json
                  [--fix NAME=VALUE] [--tie NAME=OTHER] [--loss sse|mae] [--grid] [--starts N]
-                 --out DIR
+                 [--errors absolute|relative] --out DIR
 
 Every input is read and validated, and every option checked, before anything is written:
 bad input prints one line ``axialmix fit: error: <file>:<row>: <problem>`` to stderr and
@@ -10,6 +10,12 @@ exits with status 2, leaving no output. Then each curve is fitted; its JSON reco
 plot are written to ``DIR/<name>.json`` and ``DIR/<name>.png`` as soon as it is done
 (atomically), so Ctrl-C keeps finished curves. Several curves also give ``DIR/summary.json``
 and ``DIR/summary.csv``.
+
+With ``--errors relative`` the measurement errors are taken as proportional to the curve
+(multiplicative noise, the usual case for concentration measurements): each curve is fitted,
+then fitted again weighted by ``1 / model²`` (``1 / |model|`` for the mean absolute error),
+see :func:`fitting.optimize.fit`. Unweighted least squares treats the peak, the noisiest part,
+as precise as the tail, and its intervals are then too narrow.
 
 With ``--loss mae`` the least-squares multi-start fit is polished by a fit on the mean
 absolute error (which is not smooth enough for multi-start L-BFGS alone); the evaluations
@@ -80,7 +86,11 @@ def add_fit_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--grid", action="store_true",
                         help="also run the source's exhaustive grid search and compare")
     parser.add_argument("--starts", type=int, default=None, metavar="N",
-                        help="number of starts (default 1, 8 for compartment networks)")
+                        help="number of starts (default: the moment estimate for ADM and "
+                        "tanks models, 8 for compartment networks)")
+    parser.add_argument("--errors", choices=("absolute", "relative"), default="absolute",
+                        help="measurement errors of equal size (default) or proportional to "
+                        "the curve (refit weighted by 1/model^2)")
     parser.add_argument("--length", type=float, default=None, metavar="METRES",
                         help="blender length for the equivalent D_z and v of network fits "
                         "(default 0.31 m)")
@@ -227,6 +237,9 @@ def run_fit(args: argparse.Namespace) -> int:
         settings = _parameter_settings(model, args.fix, args.tie)
         if args.starts is not None and args.starts < 1:
             raise InputError(f"--starts: must be at least 1, got {args.starts}")
+        if args.grid and args.errors == "relative":
+            raise InputError("--grid scores the unweighted loss, as the source did; use it "
+                             "without --errors relative")
         if args.length is not None and not (math.isfinite(args.length) and args.length > 0):
             raise InputError(f"--length: must be a positive number of metres, got {args.length}")
         out = Path(args.out)
@@ -236,7 +249,8 @@ def run_fit(args: argparse.Namespace) -> int:
     except InputError as error:
         print(f"axialmix fit: error: {error}", file=sys.stderr)
         return USAGE_ERROR
-    starts = args.starts or (1 if model.name in ("adm", "adm-fv", "adm-open", "tanks") else 8)
+    starts = args.starts or (None if model.name in ("adm", "adm-fv", "adm-open", "tanks")
+                             else 8)
     return _fit_all(model, curves, files, settings, args, starts, out)
 
 
@@ -261,7 +275,8 @@ def _fit_all(model, curves, files, settings, args, starts: int, out: Path) -> in
         for index, (curve, path) in enumerate(zip(curves, files, strict=True), start=1):
             _progress(index, len(curves), curve.name)
             try:
-                result = _fit_one(fit, model, curve, settings, args.loss, starts)
+                result = _fit_one(fit, model, curve, settings, args.loss, starts,
+                                  args.errors == "relative")
             except ValueError as error:
                 print(f"axialmix fit: error: {path}: {_error_line(error)}", file=sys.stderr)
                 return USAGE_ERROR
@@ -297,16 +312,18 @@ def _fit_all(model, curves, files, settings, args, starts: int, out: Path) -> in
     return 0
 
 
-def _fit_one(fit, model, curve, settings: dict, loss: str, starts: int):
+def _fit_one(fit, model, curve, settings: dict, loss: str, starts: int | None,
+             relative: bool = False):
     """Fit one curve; the mean absolute error is polished from the least-squares optimum.
 
     The MAE is not smooth, so multi-start L-BFGS on it stalls at kinks; the least-squares
     multi-start finds the basin and a single MAE fit from there finishes. The evaluations
-    and times of both stages are reported together.
+    and times of both stages are reported together. With `relative` the least-squares fit
+    is the two-pass relative-error fit and the MAE polish is weighted by ``1 / |model|``.
     """
     from fitting.optimize import Parameter
 
-    first = fit(model, curve, settings, loss="sse", n_starts=starts)
+    first = fit(model, curve, settings, loss="sse", n_starts=starts, relative_errors=relative)
     if loss == "sse":
         return first
     polish = dict(settings)
@@ -318,12 +335,13 @@ def _fit_one(fit, model, curve, settings: dict, loss: str, starts: int):
         if default.max is not None:
             value = min(value, default.max)
         polish[name] = Parameter(value, min=default.min, max=default.max)
-    second = fit(model, curve, polish, loss=loss, n_starts=1)
+    weights = np.sqrt(first.weights) if relative else None
+    second = fit(model, curve, polish, loss=loss, n_starts=1, weights=weights)
     return dataclasses.replace(
         second,
         n_evaluations=first.n_evaluations + second.n_evaluations,
         wall_time=first.wall_time + second.wall_time,
-        n_starts=starts,
+        n_starts=first.n_starts,
     )
 
 

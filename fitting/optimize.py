@@ -23,14 +23,31 @@ How a fit runs:
   learning rate (rough, many cheap steps).
 * The whole loop is a :func:`jax.lax.while_loop` inside :func:`jax.jit`; the compiled solver
   is cached per model, parameter layout and options, so later fits of the same kind only run.
-* ``n_starts > 1``: the first start is the given start value (the method-of-moments estimate by
-  default), the others are drawn at random (seeded): log-uniform within a factor of 10 of the
-  start for one-sided bounds, uniform (log-uniform for wide positive ranges) inside two-sided
-  bounds. Each random start is first moved ``warmup_steps`` Adam steps, then polished by
-  L-BFGS. All starts run as ONE vmapped batch; the lowest loss wins.
+* Starts: by default (``n_starts=None``) a fit runs from the start values and, when those
+  differ from the model's method-of-moments estimate, from that estimate too (a start whose
+  model curve misses the data sits on a flat loss no local method can leave; the moment
+  estimate always overlaps the data). ``n_starts=1`` runs the start values alone.
+  ``n_starts > 1``: the first start is the given start value (the method-of-moments estimate
+  by default), the second the moment estimate, the others are drawn at random (seeded):
+  log-uniform within a factor of 10 of the start for one-sided bounds, uniform (log-uniform
+  for wide positive ranges) inside two-sided bounds. Each random start is first moved
+  ``warmup_steps`` Adam steps, then polished by L-BFGS. All starts run as ONE vmapped
+  batch; the lowest loss wins.
 * Stopping: gradient norm below ``tol`` (converged), relative loss change below ``ftol``
   (converged: no further decrease possible at this precision), the line search finding no
   decrease, a non-finite loss, or ``max_steps`` iterations (not converged).
+* Checking (least squares): a stopped fit counts as converged only if one Gauss–Newton step
+  from it is below ``xtol``. Where the Gauss–Newton curvature ``JᵀJ`` is singular (a
+  direction the model curve does not change along to first order, e.g. the mirror line of
+  the four-compartment model), that step is meaningless; the full Hessian then decides: if
+  it is positive definite and Newton's method puts the minimum within
+  :data:`SECOND_ORDER_DISTANCE` standard errors, the fit converged (status 8).
+* ``relative_errors=True``: the data's errors are taken as proportional to the curve
+  (multiplicative noise): after a first fit, the curve is fitted again from its result with
+  weights ``1 / max(|model|, floor)²`` (``1 / max(|model|, floor)`` for the mean absolute
+  error), ``floor`` being ``RELATIVE_FLOOR`` of the model's peak, and again, until the fitted
+  values change by less than ``RELATIVE_CHANGE`` (iteratively reweighted least squares: the
+  weights are then those of the fit's own curve).
 * ``n_evaluations`` counts objective evaluations, each one value and gradient (one model
   evaluation plus its reverse pass), summed over all starts.
 """
@@ -335,7 +352,19 @@ STATUS_MESSAGES = {
        "curve may miss the data; try other start values or n_starts > 1)",
     7: "not converged: the model curve misses the data (loss at least 99 % of that of a zero "
        "curve); try other start values or n_starts > 1",
+    8: "converged: a local minimum where the Gauss-Newton curvature is singular (the full "
+       "Hessian is positive definite and Newton's method puts the minimum within "
+       "0.001 standard errors); a parameter combination is determined only at second order, "
+       "see the identifiability report",
+    9: "converged: a minimum on the bound of {names} (the loss falls towards it; the other "
+       "parameters' Hessian is positive definite and Newton's method puts the minimum "
+       "within 0.001 standard errors)",
 }
+#: Status codes that count as converged.
+CONVERGED = (0, 1, 5, 8, 9)
+#: Newton distance to a local minimum, in standard errors, below which a fit that stopped on
+#: a singular Gauss-Newton curvature counts as converged (status 8).
+SECOND_ORDER_DISTANCE = 1e-3
 _RUNNING = -1
 #: Scaled loss (1 = a zero model curve) at or above which a fit is reported as missing the data.
 _PLATEAU = 0.99
@@ -802,10 +831,11 @@ def _options(loss, method, max_steps, tol, ftol, xtol, warmup_steps, learning_ra
         raise ValueError(f"max_steps must be at least 1, got {max_steps}")
     if not tol > 0 or not ftol >= 0 or not xtol > 0:
         raise ValueError("tol and xtol must be positive and ftol non-negative")
-    if n_starts < 1:
+    if n_starts is not None and n_starts < 1:
         raise ValueError(f"n_starts must be at least 1, got {n_starts}")
-    # A single start never warms up: leave the Adam loop out of the compiled solver.
-    warmup_steps = int(warmup_steps) if n_starts > 1 else 0
+    # A single start never warms up: leave the Adam loop out of the compiled solver (and
+    # see _without_idle_warmup for starts that are not random).
+    warmup_steps = int(warmup_steps) if n_starts is None or n_starts > 1 else 0
     return _Options(loss, method, int(max_steps), float(tol), float(ftol), warmup_steps,
                     float(learning_rate), 10, float(xtol))
 
@@ -824,7 +854,15 @@ class _Prepared:
     warm: np.ndarray
 
 
-def _prepare(model, curve: Curve, params, weights, n_starts: int, seed: int) -> _Prepared:
+def _without_idle_warmup(options: _Options, prepared: Sequence[_Prepared]) -> _Options:
+    """Drop the Adam warm-up from the compiled solver when no start is random."""
+    if options.warmup_steps > 0 and not any(p.warm.any() for p in prepared):
+        return dataclasses.replace(options, warmup_steps=0)
+    return options
+
+
+def _prepare(model, curve: Curve, params, weights, n_starts: int | None,
+             seed: int) -> _Prepared:
     from fitting.models import _clip, get_model
 
     model = get_model(model)
@@ -840,12 +878,82 @@ def _prepare(model, curve: Curve, params, weights, n_starts: int, seed: int) -> 
     base = np.array([merged[n].value for n in layout.names])
     start = base[list(layout.free_index)]
     anchor = None
-    if model.initial_guess is not None and n_starts > 1:
+    if model.initial_guess is not None and (n_starts is None or n_starts > 1):
         guess = model.parameters(curve)
         anchor = np.array([_clip(guess[n].value, merged[n]) if n in guess else merged[n].value
                            for n in layout.free])
+    if n_starts is None:
+        # The start values, and the moment estimate when it differs from them.
+        same = anchor is None or np.allclose(anchor, start, rtol=1e-9, atol=0.0)
+        n_starts = 1 if same else 2
     starts, warm = _start_points(layout, start, anchor, n_starts, seed)
     return _Prepared(model, curve, merged, layout, weights, base, starts, warm)
+
+
+def _interval(value: float, half_width: float, setting: Parameter) -> tuple[float, float]:
+    """95 % interval ``value ± half_width``; for a positive parameter with a lower bound of
+    zero or more, symmetric in ``ln p`` instead (the coordinate the fit uses), so that it
+    stays positive: ``value · exp(±half_width / value)``. The two agree when the relative
+    error is small."""
+    if setting.min is not None and setting.min >= 0 and value > 0:
+        factor = math.exp(min(half_width / value, 700.0))
+        return (value / factor, value * factor)
+    return (value - half_width, value + half_width)
+
+
+@functools.lru_cache(maxsize=64)
+def _compiled_curvature(model: Model, layout: _Layout) -> Callable:
+    """Jitted ``(gradient, Hessian)`` of ``Σ w r²`` in the free parameters."""
+
+    def sse(free_values, base, time, observed, weights):
+        values = layout.all_values(free_values, base)
+        return jnp.sum(weights * (model(time, values) - observed) ** 2)
+
+    return jax.jit(lambda *a: (jax.grad(sse)(*a), jax.hessian(sse)(*a)))
+
+
+def _second_order_check(prepared: _Prepared, layout: _Layout, free_values, sse: float,
+                        dof: int) -> tuple[float, tuple[str, ...]]:
+    """Newton's distance to the nearest minimum in standard errors, and the bounds it lies on.
+
+    Near a minimum ``SSE(p) ≈ SSE* + ½ (p - p*)ᵀ H (p - p*)``, so Newton's method predicts
+    ``SSE - SSE* = ½ gᵀ H⁻¹ g``; divided by ``s² = SSE / dof`` this is the squared distance
+    to the minimum in the metric of the standard errors (exact for a linear model). A
+    parameter whose gradient pushes it onto a bound it (nearly) sits on, the rest of the
+    loss falling by less than ``SECOND_ORDER_DISTANCE² s²`` when it goes there, is taken as
+    on that bound: it adds that fall, and the others are checked on their own. Returns
+    ``(inf, ())`` when the free parameters' Hessian is not positive definite.
+    """
+    curve = prepared.curve
+    gradient, hessian = _compiled_curvature(prepared.model, layout)(
+        jnp.asarray(free_values), jnp.asarray(prepared.base), jnp.asarray(curve.time),
+        jnp.asarray(curve.value), jnp.asarray(prepared.weights))
+    gradient, hessian = np.asarray(gradient), np.asarray(hessian)
+    values = np.asarray(free_values, dtype=float)
+    if not (np.all(np.isfinite(gradient)) and np.all(np.isfinite(hessian))):
+        return math.inf, ()
+    variance = sse / dof
+    small = SECOND_ORDER_DISTANCE**2 * variance
+    on_bound, fall = [], 0.0
+    for j, kind in enumerate(layout.kinds):
+        if kind in ("lower", "both") and gradient[j] > 0:
+            gain = gradient[j] * (values[j] - layout.lower[j])
+        elif kind in ("upper", "both") and gradient[j] < 0:
+            gain = -gradient[j] * (layout.upper[j] - values[j])
+        else:
+            continue
+        if gain <= small:
+            on_bound.append(j)
+            fall += gain
+    inside = [j for j in range(values.size) if j not in on_bound]
+    if inside:
+        block = hessian[np.ix_(inside, inside)]
+        block = 0.5 * (block + block.T)
+        eigenvalues = np.linalg.eigvalsh(block)
+        if eigenvalues[0] <= 1e-12 * max(eigenvalues[-1], 1e-300):
+            return math.inf, ()
+        fall += 0.5 * float(gradient[inside] @ np.linalg.solve(block, gradient[inside]))
+    return math.sqrt(max(fall, 0.0) / variance), tuple(layout.free[j] for j in on_bound)
 
 
 def _result(prepared: _Prepared, layout: _Layout, options: _Options, out: dict,
@@ -853,7 +961,8 @@ def _result(prepared: _Prepared, layout: _Layout, options: _Options, out: dict,
     from fitting.uncertainty import gauss_newton_uncertainty, information_criteria
 
     curve, merged, weights = prepared.curve, prepared.params, prepared.weights
-    n_starts = prepared.starts.shape[0]
+    # Distinct starts (fit_many pads a batch of curves to a common number of starts).
+    n_starts = len(np.unique(prepared.starts, axis=0))
     out = {k: np.asarray(v) for k, v in out.items()}
     residual = out["predicted"] - curve.value
     n_points = int(np.count_nonzero(weights))
@@ -871,10 +980,17 @@ def _result(prepared: _Prepared, layout: _Layout, options: _Options, out: dict,
             continue
         error = float(uncertainty.all_stderr[i])
         stderr[name] = error
-        half = uncertainty.t_quantile * error
-        ci95[name] = (values[name] - half, values[name] + half)
+        ci95[name] = _interval(values[name], uncertainty.t_quantile * error, setting)
     status = int(out["status"])
-    converged = status in (0, 1, 5)
+    message = STATUS_MESSAGES[status]
+    if status == 6 and options.loss == "sse" and uncertainty.dof > 0 and sse > 0:
+        distance, on_bound = _second_order_check(prepared, layout, out["free_values"], sse,
+                                                 uncertainty.dof)
+        if distance <= SECOND_ORDER_DISTANCE:
+            status = 9 if on_bound else 8
+            message = STATUS_MESSAGES[status].replace("{names}", ", ".join(on_bound))
+            message = f"{message} (distance {distance:.1g} standard errors)"
+    converged = status in CONVERGED
     aic, bic = information_criteria(sse, n_points, len(layout.free))
     fitted = Parameters({n: merged[n].replace(value=values[n]) for n in layout.names})
     if options.method == "adam":
@@ -892,7 +1008,7 @@ def _result(prepared: _Prepared, layout: _Layout, options: _Options, out: dict,
         start_losses=out["start_losses"], grad_norm=float(out["grad_norm"]),
         newton_step=float(out["newton_step"]), wall_time=wall_time, compile_time=compile_time,
         success=converged and bool(np.isfinite(loss)), converged=converged, status=status,
-        message=STATUS_MESSAGES[status], method=method, time=curve.time,
+        message=message, method=method, time=curve.time,
         observed=curve.value, weights=weights, predicted=out["predicted"], residuals=residual,
         jacobian=out["jacobian"], name=curve.name,
     )
@@ -906,7 +1022,7 @@ def fit(
     loss: str = "sse",
     weights: Sequence[float] | np.ndarray | None = None,
     method: str = "lbfgs",
-    n_starts: int = 1,
+    n_starts: int | None = None,
     seed: int = 0,
     max_steps: int | None = None,
     tol: float = 1e-10,
@@ -914,6 +1030,7 @@ def fit(
     xtol: float = 1e-6,
     warmup_steps: int = 100,
     learning_rate: float = 0.05,
+    relative_errors: bool = False,
 ) -> FitResult:
     """Fit a residence-time model to one curve by gradient descent; see the module docstring.
 
@@ -932,7 +1049,8 @@ def fit(
       ``1/sigma_i²``; zero drops a point.
     - `method`: ``'lbfgs'`` (default) or ``'adam'``.
     - `n_starts`: number of starts, run as one vmapped batch: the start value, then (for
-      models with a moment estimate) the moment estimate, then random starts.
+      models with a moment estimate) the moment estimate, then random starts. ``None``
+      (default): the start value, plus the moment estimate when it differs.
     - `seed`: seed of the random starts.
     - `max_steps`: iteration limit per start (default 500 for L-BFGS, 5000 for Adam).
     - `tol`: gradient-norm tolerance on the scaled loss in transformed coordinates.
@@ -942,15 +1060,25 @@ def fit(
       parameters: a relative change); guards against stopping on a flat loss.
     - `warmup_steps`: Adam steps applied to each random start before L-BFGS.
     - `learning_rate`: Adam's step size in transformed coordinates.
+    - `relative_errors`: treat the data's errors as proportional to the curve (multiplicative
+      noise): fit, then refit with weights ``1 / max(|model|, floor)²`` from the latest
+      model curve until consistent (see the module docstring). Not combined with `weights`.
 
     **Returns:**
 
     A :class:`FitResult`.
     """
+    if relative_errors:
+        return fit_many(model, [data], params, loss=loss,
+                        weights=None if weights is None else [weights], method=method,
+                        n_starts=n_starts, seed=seed, max_steps=max_steps, tol=tol, ftol=ftol,
+                        xtol=xtol, warmup_steps=warmup_steps, learning_rate=learning_rate,
+                        relative_errors=True)[0]
     curve = _as_curve(data)
     options = _options(loss, method, max_steps, tol, ftol, xtol, warmup_steps, learning_rate,
                        n_starts)
     prepared = _prepare(model, curve, params, weights, n_starts, seed)
+    options = _without_idle_warmup(options, [prepared])
     # One curve is a batch of one: fit and fit_many share the compiled solver.
     solver = _compiled_solver(prepared.model, prepared.layout, options, "curves")
     out, wall_time, compile_time = _run_solver(
@@ -969,7 +1097,7 @@ def fit_many(
     loss: str = "sse",
     weights: Sequence[Sequence[float] | None] | None = None,
     method: str = "lbfgs",
-    n_starts: int = 1,
+    n_starts: int | None = None,
     seed: int = 0,
     max_steps: int | None = None,
     tol: float = 1e-10,
@@ -977,6 +1105,7 @@ def fit_many(
     xtol: float = 1e-6,
     warmup_steps: int = 100,
     learning_rate: float = 0.05,
+    relative_errors: bool = False,
 ) -> list[FitResult]:
     """Fit one model to many curves in a single vmapped, jitted call.
 
@@ -991,11 +1120,21 @@ def fit_many(
     - `params`: as in :func:`fit`, for all curves, or a list with one setting per curve.
     - `curves`: :class:`~fitting.io.Curve` objects or ``(time, values)`` pairs.
     - `weights`: one weight array (or ``None``) per curve, or ``None``.
+    - `relative_errors`: as in :func:`fit`; both passes are one vmapped call each.
 
     **Returns:**
 
     One :class:`FitResult` per curve, in order; `wall_time` is each curve's share of the call.
     """
+    settings = dict(loss=loss, method=method, seed=seed, max_steps=max_steps, tol=tol,
+                    ftol=ftol, xtol=xtol, warmup_steps=warmup_steps,
+                    learning_rate=learning_rate)
+    if relative_errors:
+        if weights is not None:
+            raise ValueError("relative_errors sets the weights itself; pass weights=None")
+        curves = [_as_curve(c) for c in curves]
+        first = fit_many(model, curves, params, n_starts=n_starts, **settings)
+        return _refit_with_relative_errors(model, curves, first, settings)
     curves = [_as_curve(c) for c in curves]
     if not curves:
         raise ValueError("fit_many needs at least one curve")
@@ -1008,9 +1147,17 @@ def fit_many(
                         else [params] * len(curves))
     if len(per_curve_params) != len(curves):
         raise ValueError(f"{len(per_curve_params)} parameter settings for {len(curves)} curves")
-    prepared = [_prepare(model, c, p, w, n_starts, seed + i)
+    def prepare_all(count):
+        return [_prepare(model, c, p, w, count, seed + i)
                 for i, (c, p, w) in enumerate(zip(curves, per_curve_params, per_curve_weights,
                                                   strict=True))]
+
+    prepared = prepare_all(n_starts)
+    counts = {p.starts.shape[0] for p in prepared}
+    if len(counts) > 1:
+        # Default starts differ in number between curves: one batch needs one number.
+        prepared = prepare_all(max(counts))
+    options = _without_idle_warmup(options, prepared)
     layout = prepared[0].layout
     for other in prepared[1:]:
         if dataclasses.replace(other.layout, scale=layout.scale) != layout:
@@ -1043,3 +1190,99 @@ def fit_many(
         results.append(_result(p, layout, options, single, share,
                                compile_time / len(curves)))
     return results
+
+
+#: Floor of the relative-error weights, as a fraction of the model curve's peak: points where
+#: the model is below it are weighted as if it were this large (a measurement's error never
+#: vanishes, and an unbounded weight would let one point near zero decide the fit).
+RELATIVE_FLOOR = 1e-3
+
+
+#: Most reweighting passes of a relative-error fit, and the relative change of every fitted
+#: value between passes below which the weights count as consistent with the fit.
+RELATIVE_MAX_PASSES, RELATIVE_CHANGE = 10, 1e-8
+
+
+def _relative_weights(result: FitResult, loss: str) -> np.ndarray:
+    size = np.abs(np.asarray(result.predicted, dtype=float))
+    size = np.maximum(size, RELATIVE_FLOOR * max(float(size.max(initial=0.0)), 1e-300))
+    return 1.0 / (size**2 if loss == "sse" else size)
+
+
+def _refit_with_relative_errors(model, curves: Sequence[Curve], first: Sequence[FitResult],
+                                settings: dict) -> list[FitResult]:
+    """Iteratively reweighted fits: weights from the previous pass's model curves, until the
+    fitted values stop changing (the weights are then those of the fit's own curve)."""
+    results, passes = list(first), 1
+    evaluations = np.array([r.n_evaluations for r in first])
+    wall = np.array([r.wall_time for r in first])
+    compile_time = np.array([r.compile_time for r in first])
+    for _ in range(RELATIVE_MAX_PASSES - 1):
+        starts = []
+        for result in results:
+            start = {}
+            for name, setting in result.init_params.items():
+                if name in result.free_names:
+                    value = result.values[name]
+                    if setting.min is not None:
+                        value = max(value, setting.min)
+                    if setting.max is not None:
+                        value = min(value, setting.max)
+                    setting = setting.replace(value=value)
+                start[name] = setting
+            starts.append(start)
+        weights = [_relative_weights(r, settings["loss"]) for r in results]
+        new = fit_many(model, curves, starts, weights=weights, n_starts=1, **settings)
+        passes += 1
+        evaluations += [r.n_evaluations for r in new]
+        wall += [r.wall_time for r in new]
+        compile_time += [r.compile_time for r in new]
+        change = max(abs(b.values[n] / a.values[n] - 1) if a.values[n] else abs(b.values[n])
+                     for a, b in zip(results, new, strict=True) for n in a.free_names)
+        results = new
+        if change <= RELATIVE_CHANGE:
+            break
+    method = f"relative errors: reweighted by 1/model^2 until consistent ({passes} passes)"
+    return [
+        _with_effective_dof(dataclasses.replace(
+            r, n_evaluations=int(e), wall_time=float(w), compile_time=float(c),
+            method=f"{r.method}; {method}", n_starts=f.n_starts,
+        ))
+        for r, f, e, w, c in zip(results, first, evaluations, wall, compile_time, strict=True)
+    ]
+
+
+def _with_effective_dof(result: FitResult) -> FitResult:
+    """Residual variance of a relative-error least-squares fit, counting floored points right.
+
+    With variance ``σ² m_i²`` and weights ``w_i = 1 / max(m_i, floor)²``, the expected
+    ``Σ w r²`` is ``σ² Σ a_i (1 - h_i)`` with ``a_i = w_i m_i²`` (1, or below 1 where the
+    floor caps the weight) and ``h_i`` the leverages of the weighted fit: these are the
+    degrees of freedom (``n - p`` when no weight is capped). A point far below the floor
+    holds almost no residual, and counting it as a full degree of freedom would understate
+    ``s``. Standard errors, intervals and ``dof`` (then not a whole number) are rescaled.
+    """
+    if result.loss_name != "sse" or result.dof <= 0:
+        return result
+    from fitting.uncertainty import effective_degrees_of_freedom
+
+    model_size = np.abs(np.asarray(result.predicted, dtype=float))
+    dof = effective_degrees_of_freedom(result.jacobian, result.weights,
+                                       result.weights * model_size**2)
+    if not (math.isfinite(dof) and dof > 0):
+        return result
+    factor = math.sqrt(result.dof / dof)
+    from scipy import stats
+
+    t_quantile = float(stats.t.ppf(0.975, dof))
+    stderr, ci95 = {}, {}
+    for name, error in result.stderr.items():
+        if error is None:
+            stderr[name], ci95[name] = None, None
+            continue
+        stderr[name] = error * factor
+        ci95[name] = _interval(result.values[name], t_quantile * stderr[name],
+                               result.init_params[name])
+    return dataclasses.replace(result, stderr=stderr, ci95=ci95,
+                               covariance=result.covariance * factor**2,
+                               sigma=result.sigma * factor, dof=dof)

@@ -167,6 +167,14 @@ def identifiability_statements(result: FitResult) -> list[str]:
                     f"{names[i]} and {names[j]} are strongly correlated (r = {r:+.3f}): the "
                     "curve determines a combination of them, not each one."
                 )
+    if len(names) > 1 and result.loss_name == "sse":
+        from fitting.uncertainty import identifiability
+
+        diagnosis = identifiability(result)
+        if diagnosis.poorly_determined:
+            statements.append(f"Combinations (curvature eigen-analysis, log scale): "
+                              f"{diagnosis.summary}.")
+    statements.extend(_mirror_statements(result))
     if undetermined:
         statements.append(
             f"Not determined by this curve: {', '.join(undetermined)}; fix or tie them "
@@ -177,6 +185,45 @@ def identifiability_statements(result: FitResult) -> list[str]:
         statements.append("All fitted parameters are determined by this curve "
                           f"(relative standard errors below {limit:.0f} %).")
     return statements
+
+
+#: |ln(k_r / k_f)| and |ln(k_s / k_f)| below this count as equal for the mirror statements.
+MIRROR_CLOSENESS = 0.05
+
+
+def _mirror_statements(result: FitResult) -> list[str]:
+    """The four-compartment model's exact twin solutions, in words with numbers.
+
+    With ``k_r = k_f`` every connection of the 2 × 2 network is two-way with a single rate,
+    and relabelling compartments 2 and 3 maps the network onto itself with ``k_f`` and
+    ``k_s`` exchanged: ``(k_f, k_f, k_s)`` and ``(k_s, k_s, k_f)`` give the same RTD.
+    """
+    if not {"k_f", "k_r", "k_s"} <= set(result.model.parameter_names):
+        return []
+    if "k_out" not in result.model.parameter_names or result.model.name != "four-compartment":
+        return []
+    k_f, k_r, k_s = (result.values[n] for n in ("k_f", "k_r", "k_s"))
+    if not (k_f > 0 and k_r > 0 and k_s > 0):
+        return []
+    tied = result.init_params["k_r"].expr is not None and \
+        result.init_params["k_r"].expr.strip() == "k_f"
+    near_tie = abs(math.log(k_r / k_f)) < MIRROR_CLOSENESS
+    if not (tied or near_tie):
+        return []
+    if abs(math.log(k_s / k_f)) < MIRROR_CLOSENESS:
+        return [
+            f"This optimum lies on the mirror line k_f = k_r = k_s (k_f = {k_f:.4g}, "
+            f"k_r = {k_r:.4g}, k_s = {k_s:.4g}): with k_r = k_f the RTD is unchanged when "
+            "k_f and k_s are exchanged, so here the curve does not change to first order "
+            "along (k_f, k_r, k_s) ∝ (+1, +1, -1) and cannot tell forward from side "
+            "exchange; only the second-order curvature holds the fit at this point."
+        ]
+    twin = "exactly" if tied else "almost exactly (k_r is close to k_f)"
+    return [
+        f"Twin solution: with k_r = k_f the RTD is unchanged when k_f and k_s are exchanged, "
+        f"so k_f = {k_s:.4g}, k_s = {k_f:.4g} fits {twin} as well as k_f = {k_f:.4g}, "
+        f"k_s = {k_s:.4g}; the curve alone cannot say which of the two is forward flow."
+    ]
 
 
 def _closed_closed_variance_ratio(peclet: float) -> float:

@@ -31,6 +31,7 @@ __all__ = [
     "GaussNewtonUncertainty",
     "Identifiability",
     "Profile",
+    "effective_degrees_of_freedom",
     "equivalent_dispersion",
     "gauss_newton_uncertainty",
     "identifiability",
@@ -61,6 +62,37 @@ class GaussNewtonUncertainty:
     dof: int
     t_quantile: float
     singular: bool
+
+
+def effective_degrees_of_freedom(jacobian: np.ndarray, weights: np.ndarray,
+                                 variance_factors: np.ndarray) -> float:
+    """Degrees of freedom of ``Σ w r²`` when the weights are not the inverse variances.
+
+    With ``Var(y_i) = σ² v_i``, weights ``W`` and the weighted projection
+    ``P = J (Jᵀ W J)⁻¹ Jᵀ W``, the residuals of the linearised fit are ``(I - P) ε`` and
+    ``E[Σ w r²] = σ² tr(W (I - P) V (I - P)ᵀ)``: this trace is the number of degrees of
+    freedom, ``n - p`` when ``W = V⁻¹``.
+
+    **Arguments:**
+
+    - `jacobian`: ``d y_model / d p`` at the optimum, shape ``(n, p)``.
+    - `weights`: ``w_i >= 0``, shape ``(n,)``.
+    - `variance_factors`: ``a_i = w_i v_i``, shape ``(n,)`` (dimensionless; 1 where the
+      weight is the inverse variance).
+
+    **Returns:** the trace above (NaN when the curvature is singular).
+    """
+    jacobian = np.asarray(jacobian, dtype=float)
+    weights = np.asarray(weights, dtype=float)
+    factors = np.asarray(variance_factors, dtype=float)
+    curvature = jacobian.T @ (weights[:, None] * jacobian)
+    eigenvalues = np.linalg.eigvalsh(curvature)
+    if eigenvalues.size == 0 or eigenvalues.min() <= SINGULAR_RATIO * max(eigenvalues.max(), 0):
+        return math.nan
+    projection = jacobian @ np.linalg.solve(curvature, jacobian.T * weights[None, :])
+    residual_map = np.eye(len(weights)) - projection
+    variance = np.divide(factors, weights, out=np.zeros_like(factors), where=weights > 0)
+    return float(np.einsum("i,ij,j->", weights, residual_map**2, variance))
 
 
 def gauss_newton_uncertainty(
@@ -266,9 +298,13 @@ class Profile:
     - `converged`: whether each re-fit converged.
     - `threshold`: ``SSE_min (1 + t² / (n - p))``, the F-test level matching the Wald 95 %
       interval (the two agree exactly for a model linear in its parameters).
-    - `ci95`: ``(low, high)`` where the profile crosses the threshold (linear interpolation);
-      ``None`` on a side where it does not cross inside the grid (the interval is open
-      there: the data do not bound the parameter).
+    - `ci95`: ``(low, high)`` where the profile first crosses the threshold on either side of
+      the fitted value (linear interpolation); ``None`` on a side where it does not cross
+      inside the grid (the interval is open there: the data do not bound the parameter).
+    - `regions`: every stretch of the grid where the profile lies below the threshold, as
+      ``(low, high)`` pairs in the same form; more than one means the data allow separate
+      ranges (a second minimum, such as the four-compartment model's mirror solution), and
+      the 95 % confidence set is their union, not `ci95` alone.
     """
 
     name: str
@@ -277,12 +313,17 @@ class Profile:
     converged: np.ndarray
     threshold: float
     ci95: tuple[float | None, float | None]
+    regions: tuple[tuple[float | None, float | None], ...] = ()
 
     def __str__(self) -> str:
         low, high = self.ci95
         text = [f"profile of {self.name}: 95 % interval "
                 f"[{'open' if low is None else f'{low:.6g}'}, "
                 f"{'open' if high is None else f'{high:.6g}'}]"]
+        if len(self.regions) > 1:
+            parts = ", ".join(f"[{'open' if a is None else f'{a:.6g}'}, "
+                              f"{'open' if b is None else f'{b:.6g}'}]" for a, b in self.regions)
+            text[0] += f"; below the threshold in {len(self.regions)} separate ranges: {parts}"
         for value, sse, ok in zip(self.values, self.sse, self.converged, strict=True):
             mark = "" if ok else "  (re-fit not converged)"
             text.append(f"    {value:<14.6g} SSE {sse:.6g}{mark}")
@@ -354,7 +395,7 @@ def profile_likelihood(
     minimum = min(result.sse, float(np.min(sse)))
     threshold = minimum * (1 + t_quantile**2 / dof) if dof > 0 else math.nan
     return Profile(name, values, sse, converged, threshold,
-                   _crossings(values, sse, threshold, best))
+                   _crossings(values, sse, threshold, best), _regions(values, sse, threshold))
 
 
 def _profile_curve(result: FitResult):
@@ -382,6 +423,34 @@ def _crossings(values: np.ndarray, sse: np.ndarray, threshold: float,
     low = crossing(values[below][::-1], sse[below][::-1])
     high = crossing(values[above], sse[above])
     return low, high
+
+
+def _regions(values: np.ndarray, sse: np.ndarray,
+             threshold: float) -> tuple[tuple[float | None, float | None], ...]:
+    """Maximal stretches of a profile below `threshold`, ends linearly interpolated (``None``
+    where a stretch runs off the grid)."""
+    order = np.argsort(values)
+    xs, ys = values[order], sse[order]
+    inside = ys < threshold
+
+    def cross(k: int) -> float:
+        x0, x1, y0, y1 = xs[k], xs[k + 1], ys[k], ys[k + 1]
+        return float(x0 + (threshold - y0) * (x1 - x0) / (y1 - y0))
+
+    regions = []
+    k = 0
+    while k < len(xs):
+        if not inside[k]:
+            k += 1
+            continue
+        start = k
+        while k + 1 < len(xs) and inside[k + 1]:
+            k += 1
+        low = None if start == 0 else cross(start - 1)
+        high = None if k == len(xs) - 1 else cross(k)
+        regions.append((low, high))
+        k += 1
+    return tuple(regions)
 
 
 # --- information criteria and the equivalent ADM of network fits --------------------------------

@@ -5,10 +5,11 @@ curves are drawn from the exact closed–closed ADM with 2 % multiplicative nois
 points, fitted, and the share of 95 % intervals that contain the true tau and Pe is counted.
 
 Multiplicative noise has a standard deviation proportional to the curve, so the fit is
-weighted by ``1 / y_model²`` (relative errors), found in two passes: an unweighted fit gives
-``y_model``, the weighted fit from its values gives the answer (iteratively reweighted least
-squares). Unweighted least squares would treat the peak, the noisiest part, as as precise
-as the tail: its intervals are then about three times too narrow here (a test below shows it).
+weighted by ``1 / y_model²`` (relative errors, ``relative_errors=True``): an unweighted fit
+gives ``y_model``, weighted fits from there are repeated until the weights are those of the
+fit's own curve (iteratively reweighted least squares). Unweighted least squares would treat
+the peak, the noisiest part, as as precise as the tail: its intervals are then about three
+times too narrow here (a test below shows it).
 """
 
 from __future__ import annotations
@@ -39,10 +40,8 @@ def repeated_fits() -> list:
         for _ in range(REPETITIONS)
     ]
     first = fit_many("adm", curves, loss="sse")
-    weights = [1.0 / np.asarray(r.predicted) ** 2 for r in first]
-    starts = {"tau": float(np.median([r.values["tau"] for r in first])),
-              "peclet": float(np.median([r.values["peclet"] for r in first]))}
-    return fit_many("adm", curves, starts, loss="sse", weights=weights), first
+    # The library's relative-error fit (as `axialmix fit --errors relative`).
+    return fit_many("adm", curves, loss="sse", relative_errors=True), first
 
 
 def test_95_percent_intervals_cover_true_tau_and_peclet_90_to_99_percent_of_the_time(

@@ -111,6 +111,38 @@ def test_fix_and_tie_are_honoured(tmp_path, capsys):
     assert "= k_f" in capsys.readouterr().out
 
 
+def test_relative_errors_option_runs_the_weighted_fit_of_the_library(tmp_path, capsys):
+    # Multiplicative noise on an exact ADM curve; the command must give exactly what the
+    # library's relative-error fit gives, and differ from the unweighted fit.
+    import numpy as np
+
+    from axialmix.analytic import exit_age_closed
+    from fitting.io import read_rtd_csv
+    from fitting.optimize import fit
+
+    rng = np.random.default_rng(5)
+    t = np.linspace(3.0, 90.0, 15)
+    y = np.asarray(exit_age_closed(t, 30.0, 20.0)) * (1 + 0.02 * rng.standard_normal(t.size))
+    path = tmp_path / "noisy.csv"
+    rows = "".join(f"{a:.17g},{b:.17g}\n" for a, b in zip(t, y, strict=True))
+    path.write_text("time_s,E_per_s\n" + rows)
+    records = {}
+    for errors in ("absolute", "relative"):
+        out = tmp_path / errors
+        assert main(["fit", str(path), "--model", "adm", "--errors", errors,
+                     "--out", str(out)]) == 0
+        records[errors] = json.loads((out / "noisy.json").read_text())
+    capsys.readouterr()
+    library = fit("adm", read_rtd_csv(path), relative_errors=True)
+    weighted = records["relative"]["parameters"]
+    for name in ("tau", "peclet"):
+        assert weighted[name]["value"] == pytest.approx(library.values[name], rel=1e-10)
+        assert weighted[name]["stderr"] == pytest.approx(library.stderr[name], rel=1e-8)
+        unweighted = records["absolute"]["parameters"][name]
+        assert abs(unweighted["stderr"] / weighted[name]["stderr"] - 1) > 0.2
+    assert records["relative"]["converged"]
+
+
 GOOD = "time_s,concentration\n0,0\n1,0.2\n2,0.5\n3,0.3\n4,0.1\n5,0.02\n"
 BAD_FILES = {
     "bad_columns": ("a,b,c\n1,2,3\n2,3,4\n3,4,5\n4,5,6\n5,6,7\n", None),
@@ -168,7 +200,8 @@ def test_bad_folder_file_and_options_are_one_line_errors(tmp_path, capsys):
     assert main(["fit", str(folder), "--out", str(out)]) == 2
     _assert_one_line_error(capsys.readouterr(), folder / "b.csv", 4)
     for options in (["--model", "nonsense"], ["--fix", "k_f"], ["--fix", "zeta=1"],
-                    ["--model", "four-compartment", "--tie", "k_r=k_q"], ["--starts", "0"]):
+                    ["--model", "four-compartment", "--tie", "k_r=k_q"], ["--starts", "0"],
+                    ["--grid", "--errors", "relative"], ["--errors", "poisson"]):
         assert main(["fit", str(EXAMPLE_FILES[0]), *options, "--out", str(out)]) == 2
         lines = capsys.readouterr().err.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("axialmix fit: error: ")

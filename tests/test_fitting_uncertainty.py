@@ -12,6 +12,8 @@ from axialmix.network import four_compartment_exit_age
 from fitting.models import custom_model
 from fitting.optimize import Parameter, fit, fit_many
 from fitting.uncertainty import (
+    _regions,
+    effective_degrees_of_freedom,
     equivalent_dispersion,
     gauss_newton_uncertainty,
     identifiability,
@@ -112,6 +114,31 @@ def test_profile_of_a_linear_model_is_the_exact_parabola_and_matches_the_wald_in
     assert profile.ci95[1] == pytest.approx(high, abs=1e-3 * half_width)
 
 
+def test_effective_degrees_of_freedom_are_n_minus_p_for_inverse_variance_weights():
+    rng = np.random.default_rng(4)
+    jacobian = rng.normal(size=(15, 3))
+    weights = rng.uniform(0.5, 2.0, 15)
+    assert effective_degrees_of_freedom(jacobian, weights, np.ones(15)) == pytest.approx(12.0)
+    # A point whose weight is far below its inverse variance holds almost no residual: about
+    # one degree of freedom less (its own, less its small leverage).
+    factors = np.ones(15)
+    factors[0] = 1e-20
+    assert 11.0 < effective_degrees_of_freedom(jacobian, weights, factors) < 11.6
+    # Monte Carlo: the expected weighted sum of squares of a linear fit, weights not 1/variance.
+    variance = rng.uniform(0.1, 3.0, 15)
+    weights = 1 / np.maximum(variance, 1.0)
+    noise = rng.normal(size=(20000, 15)) * np.sqrt(variance)
+    sqrt_w = np.sqrt(weights)
+    projection = np.eye(15) - sqrt_w[:, None] * jacobian @ np.linalg.solve(
+        jacobian.T @ (weights[:, None] * jacobian), jacobian.T * sqrt_w[None, :])
+    residual = (noise * sqrt_w) @ projection.T
+    mean_sse = np.mean(np.sum(residual**2, axis=1))
+    dof = effective_degrees_of_freedom(jacobian, weights, weights * variance)
+    # The mean of 20,000 sums has a relative standard error of about 0.3 %.
+    assert mean_sse == pytest.approx(dof, rel=0.012)
+    assert dof < 11.5
+
+
 def test_gauss_newton_uncertainty_marks_a_singular_curvature():
     jacobian = np.array([[1.0, 2.0], [2.0, 4.0], [3.0, 6.0]])  # second column = 2 x first
     uncertainty = gauss_newton_uncertainty(jacobian, np.array([0.1, -0.1, 0.05]), np.ones(3))
@@ -181,6 +208,47 @@ def _check_diagnosis(result):
     for i in diagnosis.poorly_determined:
         assert diagnosis.half_widths[i] > math.log(2) or diagnosis.ratios[i] < 1e-12
     return diagnosis
+
+
+def test_profile_regions_of_a_double_well_are_both_found():
+    # SSE = (x² - 1)² + 0.1 lies below 0.2 where x² is within sqrt(0.1) of 1: two ranges.
+    x = np.linspace(-2.0, 2.0, 4001)
+    regions = _regions(x, (x**2 - 1) ** 2 + 0.1, 0.2)
+    inner, outer = math.sqrt(1 - math.sqrt(0.1)), math.sqrt(1 + math.sqrt(0.1))
+    np.testing.assert_allclose(np.array(regions), [[-outer, -inner], [inner, outer]],
+                               atol=1e-5)
+    # Open ends where the profile stays below the threshold up to the grid's edge.
+    assert _regions(x, x**2, 5.0) == ((None, None),)
+    assert _regions(x, x, 0.0) == ((None, 0.0),)
+
+
+def test_rtd_of_the_four_compartment_model_is_unchanged_by_swapping_k_f_and_k_s_when_tied():
+    # With k_r = k_f every connection is two-way with one rate, and relabelling compartments
+    # 2 and 3 maps the network onto itself with k_f and k_s exchanged.
+    t = np.linspace(0.0, 15.0, 61)
+    one = np.asarray(four_compartment_exit_age(t, 2.125, 2.125, 0.625, 0.8))
+    other = np.asarray(four_compartment_exit_age(t, 0.625, 0.625, 2.125, 0.8))
+    np.testing.assert_allclose(one, other, rtol=1e-12, atol=1e-14 * one.max())
+    # Without the tie the symmetry is gone.
+    assert np.max(np.abs(np.asarray(four_compartment_exit_age(t, 2.125, 1.0, 0.625, 0.8))
+                         - np.asarray(four_compartment_exit_age(t, 0.625, 1.0, 2.125, 0.8)))) \
+        > 1e-3 * one.max()
+
+
+def test_profile_of_k_s_finds_the_mirror_solution_of_the_tied_fit(four_compartment_tied):
+    result = four_compartment_tied
+    k_f, k_s = result.values["k_f"], result.values["k_s"]
+    profile = profile_likelihood(result, "k_s", np.geomspace(0.25, 5.0, 49))
+    print(profile)
+    assert profile.converged.all()
+    assert len(profile.regions) == 2
+    (low_1, high_1), (low_2, high_2) = profile.regions
+    assert low_1 < k_s < high_1 and low_2 < k_f < high_2
+    # The mirror's own minimum equals the fit's: the re-fits there reach the fit's SSE to
+    # within the grid's coarseness (a 6 % step in k_s; the profile is flat to second order).
+    near_mirror = np.abs(np.log(profile.values / k_f)) < 0.07
+    assert np.min(profile.sse[near_mirror]) < result.sse * (1 + 0.5 * (
+        profile.threshold / result.sse - 1))
 
 
 def test_four_compartment_with_k_r_tied_to_k_f_is_identifiable(four_compartment_tied):
