@@ -896,9 +896,16 @@ def _interval(value: float, half_width: float, setting: Parameter) -> tuple[floa
     stays positive: ``value · exp(±half_width / value)``. The two agree when the relative
     error is small."""
     if setting.min is not None and setting.min >= 0 and value > 0:
-        factor = math.exp(min(half_width / value, 700.0))
+        if not half_width / value <= LOG_INTERVAL_LIMIT:
+            return (0.0, math.inf)  # not bounded at all (or an undefined error)
+        factor = math.exp(half_width / value)
         return (value / factor, value * factor)
     return (value - half_width, value + half_width)
+
+
+#: Half-width in ln p beyond which a positive parameter's interval is reported as (0, inf):
+#: a factor of 1e20 either way bounds nothing.
+LOG_INTERVAL_LIMIT = math.log(1e20)
 
 
 @functools.lru_cache(maxsize=64)

@@ -95,6 +95,8 @@ def _finite(x: Any) -> float | None:
 
 
 def _number(x: Any, digits: int = 5) -> str:
+    if x is not None and math.isinf(float(x)):
+        return "inf" if float(x) > 0 else "-inf"
     value = _finite(x)
     return "-" if value is None else f"{value:.{digits}g}"
 

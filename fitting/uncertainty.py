@@ -264,8 +264,12 @@ def identifiability(result: FitResult) -> Identifiability:
         components = ", ".join(f"{n} {c:+.2f}" for n, c in zip(names, directions[:, i],
                                                                    strict=True))
         width = half_widths[i]
-        width_text = (f"95 % half-width ±{width:.3g} (factor {math.exp(min(width, 700)):.3g})"
-                      if np.isfinite(width) else "no bound at all")
+        if not np.isfinite(width):
+            width_text = "no bound at all"
+        elif width > math.log(1e20):
+            width_text = f"95 % half-width ±{width:.3g} in the logarithm (no bound in practice)"
+        else:
+            width_text = f"95 % half-width ±{width:.3g} (factor {math.exp(width):.3g})"
         return (f"{_combination_words(directions[:, i], names, log_scale)}: eigenvalue ratio "
                 f"{ratios[i]:.2g}, direction ({components}), {width_text}")
 
