@@ -78,6 +78,9 @@ def test_v_blender_mean_counts_match_markov_prediction_over_20_seeds():
     predicted = _v_blender_prediction(network, initial, report)[:, :, 0]
     mean = runs.mean(axis=0)
     standard_error = runs.std(axis=0, ddof=1) / np.sqrt(runs.shape[0])
+    z = (mean - predicted) / standard_error
+    print(f"V-blender, 20 seeds: largest |mean - Markov| = {np.max(np.abs(z)):.2f} standard "
+          f"errors over {z.size} (step, compartment) pairs")
     # Within 3 standard errors at every reported step and compartment.
     assert np.all(np.abs(mean - predicted) <= 3 * standard_error), (
         mean - predicted
@@ -196,7 +199,9 @@ def test_continuous_tracer_rtd_matches_network_exit_age(engine, request):
     exit_steps = np.repeat(np.arange(steps), outflow)
     assert outflow.sum() == 30_000  # every tracer left within the run
     # Pearson chi-square over 30 bins of equal predicted probability, 0.1 % level.
-    assert _rtd_p_value(exit_steps, network.to_network(), 5, steps) > 1e-3
+    p_value = _rtd_p_value(exit_steps, network.to_network(), 5, steps)
+    print(f"{engine} engine tracer RTD vs network RTD: chi-square p = {p_value:.3g}")
+    assert p_value > 1e-3
     if engine == "identity":
         exits = result.exit_steps()
         assert np.array_equal(np.sort(exits[:, 1]), exit_steps)
@@ -226,7 +231,9 @@ def test_continuous_tracer_rtd_rejects_network_with_rate_changed_by_20_percent(
             for c in reference.connections
         ]
         changed = reference.with_rates(rates=rates)
-    assert _rtd_p_value(exit_steps, changed, 5, steps) < 1e-3
+    p_value = _rtd_p_value(exit_steps, changed, 5, steps)
+    print(f"tracer RTD vs network with {rate} rate x 1.2: chi-square p = {p_value:.3g}")
+    assert p_value < 1e-3
 
 
 def test_equilibrium_sample_variance_matches_hypergeometric_prediction():
@@ -252,6 +259,8 @@ def test_equilibrium_sample_variance_matches_hypergeometric_prediction():
         # Standard error of the sample variance (ddof=1) from the exact fourth moment.
         se = np.sqrt(mu4 / r - sigma2**2 * (r - 3) / (r * (r - 1)))
         estimate = np.var(fractions, ddof=1)
+        print(f"m = {m}: sample variance {estimate:.5g}, hypergeometric {sigma2:.5g}, "
+              f"z = {(estimate - sigma2) / se:+.2f}")
         assert abs(estimate - sigma2) <= 3 * se, (m, estimate, sigma2, se)
         assert sigma2 == pytest.approx(0.25 / m * (5000 - m) / 4999)
 
