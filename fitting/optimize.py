@@ -618,6 +618,8 @@ class FitResult:
     - `correlation`, `covariance`: matrices over `free_names`.
     - `loss`: the minimised loss, unscaled (``Σ w r²`` or the mean absolute error).
     - `sse`: ``Σ w r²`` at the optimum whatever the loss (for AIC/BIC and errors).
+    - `dof`: degrees of freedom of ``sse``, ``n - p`` (not a whole number for relative-error
+      fits, where weights capped at the floor count less); `sigma`: ``sqrt(sse / dof)``.
     - `n_evaluations`: objective evaluations (value and gradient), all starts together.
     - `wall_time`: seconds the compiled solver ran (its share, for :func:`fit_many`);
       `compile_time`: seconds spent compiling it first (0 when reused).
@@ -640,7 +642,7 @@ class FitResult:
     loss_name: str
     sse: float
     n_points: int
-    dof: int
+    dof: float
     sigma: float
     aic: float
     bic: float
@@ -689,6 +691,7 @@ class FitResult:
             "compiling)",
             f"    data points        = {self.n_points}",
             f"    variables          = {len(self.free_names)}",
+            f"    degrees of freedom = {self.dof:.4g}",
             f"    loss ({self.loss_name})         = {self.loss:.6g}",
             f"    sum of squares     = {self.sse:.6g}",
             f"    residual std (s)   = {self.sigma:.6g}",
@@ -1253,7 +1256,7 @@ def _refit_with_relative_errors(model, curves: Sequence[Curve], first: Sequence[
     return [
         _with_effective_dof(dataclasses.replace(
             r, n_evaluations=int(e), wall_time=float(w), compile_time=float(c),
-            method=f"{r.method}; {method}", n_starts=f.n_starts,
+            method=f"{r.method}; {method}", n_starts=f.n_starts, init_params=f.init_params,
         ))
         for r, f, e, w, c in zip(results, first, evaluations, wall, compile_time, strict=True)
     ]
