@@ -13,9 +13,10 @@ and ``DIR/summary.csv``.
 
 With ``--errors relative`` the measurement errors are taken as proportional to the curve
 (multiplicative noise, the usual case for concentration measurements): each curve is fitted,
-then fitted again weighted by ``1 / model²`` (``1 / |model|`` for the mean absolute error),
-see :func:`fitting.optimize.fit`. Unweighted least squares treats the peak, the noisiest part,
-as precise as the tail, and its intervals are then too narrow.
+then refitted weighted by ``1 / model²`` until the weights are those of its own curve
+(``1 / |model|`` for the mean absolute error), see :func:`fitting.optimize.fit`. Unweighted
+least squares treats the peak, the noisiest part, as precise as the tail, and its intervals
+are then too narrow.
 
 With ``--loss mae`` the least-squares multi-start fit is polished by a fit on the mean
 absolute error (which is not smooth enough for multi-start L-BFGS alone); the evaluations
@@ -319,24 +320,14 @@ def _fit_one(fit, model, curve, settings: dict, loss: str, starts: int | None,
     The MAE is not smooth, so multi-start L-BFGS on it stalls at kinks; the least-squares
     multi-start finds the basin and a single MAE fit from there finishes. The evaluations
     and times of both stages are reported together. With `relative` the least-squares fit
-    is the two-pass relative-error fit and the MAE polish is weighted by ``1 / |model|``.
+    is the relative-error fit and the MAE polish is weighted by ``1 / |model|``.
     """
-    from fitting.optimize import Parameter
-
     first = fit(model, curve, settings, loss="sse", n_starts=starts, relative_errors=relative)
     if loss == "sse":
         return first
-    polish = dict(settings)
-    for name in first.free_names:
-        default = model.defaults.get(name, first.init_params[name])
-        value = float(first.values[name])
-        if default.min is not None:
-            value = max(value, default.min)
-        if default.max is not None:
-            value = min(value, default.max)
-        polish[name] = Parameter(value, min=default.min, max=default.max)
     weights = np.sqrt(first.weights) if relative else None
-    second = fit(model, curve, polish, loss=loss, n_starts=1, weights=weights)
+    second = fit(model, curve, first.restart_parameters(), loss=loss, n_starts=1,
+                 weights=weights)
     return dataclasses.replace(
         second,
         n_evaluations=first.n_evaluations + second.n_evaluations,

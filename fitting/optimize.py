@@ -778,6 +778,21 @@ class FitResult:
             "compile_time": self.compile_time,
         }
 
+    def restart_parameters(self) -> Parameters:
+        """This fit's settings with the fitted values as start values (kept inside bounds),
+        to start another fit from this one."""
+        start = Parameters()
+        for name, setting in self.init_params.items():
+            if name in self.free_names:
+                value = self.values[name]
+                if setting.min is not None:
+                    value = max(value, setting.min)
+                if setting.max is not None:
+                    value = min(value, setting.max)
+                setting = setting.replace(value=value)
+            start[name] = setting
+        return start
+
     def identifiability(self):
         """Poorly determined parameter combinations (see :mod:`fitting.uncertainty`)."""
         from fitting.uncertainty import identifiability
@@ -1228,19 +1243,7 @@ def _refit_with_relative_errors(model, curves: Sequence[Curve], first: Sequence[
     wall = np.array([r.wall_time for r in first])
     compile_time = np.array([r.compile_time for r in first])
     for _ in range(RELATIVE_MAX_PASSES - 1):
-        starts = []
-        for result in results:
-            start = {}
-            for name, setting in result.init_params.items():
-                if name in result.free_names:
-                    value = result.values[name]
-                    if setting.min is not None:
-                        value = max(value, setting.min)
-                    if setting.max is not None:
-                        value = min(value, setting.max)
-                    setting = setting.replace(value=value)
-                start[name] = setting
-            starts.append(start)
+        starts = [r.restart_parameters() for r in results]
         weights = [_relative_weights(r, settings["loss"]) for r in results]
         new = fit_many(model, curves, starts, weights=weights, n_starts=1, **settings)
         passes += 1

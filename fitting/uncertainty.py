@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy import stats
 
+from fitting.optimize import LOG_INTERVAL_LIMIT
+
 if TYPE_CHECKING:
     from fitting.optimize import FitResult
 
@@ -266,7 +268,7 @@ def identifiability(result: FitResult) -> Identifiability:
         width = half_widths[i]
         if not np.isfinite(width):
             width_text = "no bound at all"
-        elif width > math.log(1e20):
+        elif width > LOG_INTERVAL_LIMIT:
             width_text = f"95 % half-width ±{width:.3g} in the logarithm (no bound in practice)"
         else:
             width_text = f"95 % half-width ±{width:.3g} (factor {math.exp(width):.3g})"

@@ -118,6 +118,53 @@ def test_finite_volume_fits_from_10x_off_converge_with_default_starts():
         assert tau_error < 1e-3 and peclet_error < 1e-2
 
 
+# Compiles the four-compartment solver and its Hessian (about half a minute).
+@pytest.mark.slow
+def test_minimum_on_the_four_compartment_mirror_line_is_confirmed_by_the_full_hessian():
+    from pathlib import Path
+
+    from axialmix.network import four_compartment_exit_age
+    from fitting.io import read_rtd_csv
+
+    curve = read_rtd_csv(Path(__file__).parents[1] / "examples" / "data" / "horizontal.csv")
+    result = fit("four-compartment", curve, {"k_out": Parameter(0.8, vary=False)})
+    print(result.message)
+    assert result.status == 8 and result.converged
+    names = ("k_f", "k_r", "k_s")
+    point = np.log([result.values[n] for n in names])
+
+    def sse(log_rates):
+        model = np.asarray(four_compartment_exit_age(curve.time, *np.exp(log_rates), 0.8))
+        return float(np.sum((model - curve.value) ** 2))
+
+    # Independent check by central differences: the Gauss-Newton matrix is singular along
+    # the mirror direction, the full Hessian positive definite, the gradient negligible.
+    step = 1e-4
+    hessian = np.empty((3, 3))
+    gradient = np.empty(3)
+    for i in range(3):
+        e_i = np.eye(3)[i] * step
+        gradient[i] = (sse(point + e_i) - sse(point - e_i)) / (2 * step)
+        for j in range(3):
+            e_j = np.eye(3)[j] * step
+            hessian[i, j] = (sse(point + e_i + e_j) - sse(point + e_i - e_j)
+                             - sse(point - e_i + e_j) + sse(point - e_i - e_j)) / (4 * step**2)
+    jacobian = np.stack([
+        (np.asarray(four_compartment_exit_age(curve.time, *np.exp(point + np.eye(3)[i] * step),
+                                              0.8))
+         - np.asarray(four_compartment_exit_age(curve.time,
+                                                *np.exp(point - np.eye(3)[i] * step), 0.8)))
+        / (2 * step) for i in range(3)], axis=1)
+    gauss_newton = np.linalg.eigvalsh(jacobian.T @ jacobian)
+    assert gauss_newton[0] < 1e-6 * gauss_newton[-1]
+    eigenvalues = np.linalg.eigvalsh(0.5 * (hessian + hessian.T))
+    # Positive definite: the smallest eigenvalue (about 5e-4 of the largest, the curvature
+    # along the mirror direction) lies far above the differences' error (about 1e-8 of it).
+    assert eigenvalues[0] > 1e-5 * eigenvalues[-1]
+    newton_fall = 0.5 * gradient @ np.linalg.solve(hessian, gradient)
+    assert newton_fall < 1e-8 * result.sse
+
+
 @pytest.mark.parametrize("model_name", ["adm", "adm-open", "tanks", "four-compartment"])
 def test_objective_gradient_matches_central_differences(model_name):
     model = get_model(model_name)

@@ -251,6 +251,24 @@ def test_profile_of_k_s_finds_the_mirror_solution_of_the_tied_fit(four_compartme
         profile.threshold / result.sse - 1))
 
 
+def test_report_names_the_twin_solution_of_a_tied_fit(four_compartment_tied, linear_fits):
+    from fitting.report import identifiability_statements
+
+    result = four_compartment_tied
+    k_f, k_s = result.values["k_f"], result.values["k_s"]
+    twins = [s for s in identifiability_statements(result) if s.startswith("Twin solution")]
+    assert len(twins) == 1
+    assert f"k_f = {k_s:.4g}, k_s = {k_f:.4g} fits exactly" in twins[0]
+    # The twin it names fits exactly as well (the exchange symmetry, evaluated directly).
+    one = np.asarray(four_compartment_exit_age(NETWORK_TIME, k_f, k_f, k_s, result.values["k_out"]))
+    other = np.asarray(four_compartment_exit_age(NETWORK_TIME, k_s, k_s, k_f,
+                                                 result.values["k_out"]))
+    np.testing.assert_allclose(other, one, rtol=1e-10, atol=1e-13 * one.max())
+    # Other models get no such statement.
+    for fitted in linear_fits[2]:
+        assert not any("Twin" in s or "mirror" in s for s in identifiability_statements(fitted))
+
+
 def test_four_compartment_with_k_r_tied_to_k_f_is_identifiable(four_compartment_tied):
     diagnosis = _check_diagnosis(four_compartment_tied)
     assert diagnosis.poorly_determined == ()
