@@ -1,0 +1,364 @@
+"""Reading and validating residence-time curves from CSV files.
+
+A tracer experiment gives a table of sample times and outlet concentrations. This module turns
+such a file into a validated, immutable :class:`Curve`, or raises :class:`DataError` with ONE
+line naming the file, the row (1-based line number, as a text editor shows it) and the
+problem. Warnings (:class:`DataWarning`) are one line too.
+
+Format accepted:
+
+* Read by :mod:`axialmix._csv` (streamed: a file of millions of rows is read in bounded
+  memory). Delimiter: comma, semicolon, tab or runs of spaces (detected from the first row).
+* Lines starting with ``#`` and blank lines are skipped (they still count for line numbers).
+* An optional header line. Time column names: ``t``, ``time``, ``times``, ``time_s``,
+  ``t [min]``, ``time (s)``, ...; value column names: ``c``, ``conc``, ``concentration``,
+  ``E``, ``E(t) [1/s]``, ``exit_age``, ``value``, ``signal``, ``tracer``, ``y``, ...
+  A unit may follow the name in brackets or parentheses, or after an underscore
+  (``time_min``). Without a header, the first column is time and the second the value.
+* Time units recognised: s, ms, min, h (and their spellings). Times are kept in the file's
+  unit; ``Curve.time_unit`` records it, and E is then in 1/(that unit).
+
+Normalisation uses :func:`axialmix.rtd.normalise`, i.e. the trapezoid rule on the sampled
+grid (``E = c / ∫ c dt``); a curve cut off before its tail has decayed is therefore
+normalised to the observed part only, which is why such curves produce a warning.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+import warnings
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from axialmix._csv import Column, DataError, Table, read_table
+
+__all__ = ["TIME_UNIT_SECONDS", "Curve", "DataError", "DataWarning", "as_curve", "input_files",
+           "read_many", "read_rtd_csv", "seconds_per"]
+
+#: Fraction of the peak that the last sample may keep before the curve counts as "never
+#: returned to baseline": a tail above 5 % of the peak leaves a visible part of the area
+#: (and much of the variance) unmeasured.
+TAIL_FRACTION = 0.05
+
+_TIME_NAMES = {"t", "time", "times", "tempo", "zeit", "elapsed", "elapsed_time", "sample_time"}
+_VALUE_NAMES = {
+    "c", "conc", "concentration", "e", "e(t)", "et", "exit_age", "exitage", "rtd",
+    "value", "values", "signal", "tracer", "y", "intensity", "absorbance", "response",
+    "mass_fraction", "fraction", "api", "c(t)", "ct",
+}
+_TIME_UNITS = {
+    "s": "s", "sec": "s", "secs": "s", "second": "s", "seconds": "s",
+    "ms": "ms", "millisecond": "ms", "milliseconds": "ms",
+    "min": "min", "mins": "min", "minute": "min", "minutes": "min", "m": "min",
+    "h": "h", "hr": "h", "hrs": "h", "hour": "h", "hours": "h",
+}
+#: Seconds in one of each time unit a curve may carry.
+TIME_UNIT_SECONDS = {"s": 1.0, "ms": 1e-3, "min": 60.0, "h": 3600.0}
+#: Smallest peak and largest value accepted: below, normalising underflows (denormal
+#: numbers lose their precision); above, areas and squared residuals overflow float64.
+SMALLEST_PEAK, LARGEST_VALUE = 1e-200, 1e200
+
+
+def seconds_per(time_unit: str) -> float:
+    """Seconds in one `time_unit` (``'s'``, ``'ms'``, ``'min'`` or ``'h'``)."""
+    try:
+        return TIME_UNIT_SECONDS[time_unit]
+    except KeyError:
+        raise ValueError(f"unknown time unit {time_unit!r}; known: "
+                         f"{', '.join(TIME_UNIT_SECONDS)}") from None
+
+
+class DataWarning(UserWarning):
+    """A usable residence-time data file with a doubtful feature; the message is one line."""
+
+
+@dataclass(frozen=True, eq=False)
+class Curve:
+    """One measured residence-time curve: sample times and values, immutable.
+
+    **Arguments:**
+
+    - `name`: a label (by default the file name without extension).
+    - `time`: sample times, shape ``(n,)``, strictly increasing, non-negative; unit
+      `time_unit`.
+    - `value`: exit-age density ``E(t)`` in 1/`time_unit` when normalised, otherwise the raw
+      (baseline-corrected) signal, shape ``(n,)``.
+    - `time_unit`: unit of `time` as read from the header (``"s"`` when none was given):
+      ``"s"``, ``"ms"``, ``"min"`` or ``"h"``.
+    - `source`: where the curve came from (file path), or ``None``.
+    """
+
+    name: str
+    time: np.ndarray
+    value: np.ndarray
+    time_unit: str = "s"
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        time = np.array(self.time, dtype=float)
+        value = np.array(self.value, dtype=float)
+        if time.ndim != 1 or value.shape != time.shape:
+            raise ValueError(
+                f"curve {self.name!r}: time and value must be 1-D of equal length, got shapes "
+                f"{time.shape} and {value.shape}"
+            )
+        seconds_per(self.time_unit)
+        time.flags.writeable = False
+        value.flags.writeable = False
+        object.__setattr__(self, "time", time)
+        object.__setattr__(self, "value", value)
+
+    def __len__(self) -> int:
+        return self.time.shape[0]
+
+    @property
+    def seconds_per_time_unit(self) -> float:
+        """Seconds in one unit of `time` (60 for a curve in minutes)."""
+        return seconds_per(self.time_unit)
+
+    def __repr__(self) -> str:
+        return (
+            f"Curve(name={self.name!r}, {len(self)} points, t = {self.time[0]:g}..."
+            f"{self.time[-1]:g} {self.time_unit}, source={self.source!r})"
+        )
+
+
+def _pick_column(table: Table, wanted: str | int | None, candidates: set[str],
+                 role: str) -> Column | None:
+    """The column called `wanted` (name or index), else the one with a known spelling."""
+    if wanted is not None:
+        try:
+            return table.column(wanted)
+        except DataError as error:
+            raise table.error(f"{role} column: {error.problem}") from None
+    matches = [c for c in table.columns if c.name in candidates or c.label.lower() in candidates]
+    if len(matches) > 1:
+        listed = ", ".join(repr(c.label) for c in matches)
+        raise table.error(f"several possible {role} columns ({listed}); choose one")
+    return matches[0] if matches else None
+
+
+def _columns(table: Table, time_column, value_column) -> tuple[Column, Column]:
+    labels = ", ".join(c.label for c in table.columns)
+    if len(table.columns) < 2:
+        raise table.error(f"missing column: found {len(table.columns)} column, need time and "
+                          "value")
+    time = _pick_column(table, time_column, _TIME_NAMES, "time")
+    value = _pick_column(table, value_column, _VALUE_NAMES, "value")
+    two = len(table.columns) == 2
+    if time is None and value is None and two:
+        time, value = table.columns
+    elif time is None and two:
+        time = table.columns[1 - value.index]
+    elif value is None and two:
+        value = table.columns[1 - time.index]
+    if time is None:
+        raise table.error(f"missing time column (columns: {labels}); name it 't' or 'time', "
+                          "or pass time_column")
+    if value is None:
+        raise table.error(f"extra columns, cannot tell which is the concentration (columns: "
+                          f"{labels}); pass value_column")
+    if time.index == value.index:
+        raise table.error(f"time and value are the same column {time.label!r}")
+    return time, value
+
+
+def _first(mask: np.ndarray) -> int | None:
+    hits = np.flatnonzero(mask)
+    return int(hits[0]) if hits.size else None
+
+
+def read_rtd_csv(
+    path: str | Path,
+    *,
+    time_column: str | int | None = None,
+    value_column: str | int | None = None,
+    baseline: None | str | float = None,
+    normalise: bool = True,
+    min_points: int = 5,
+    on_truncated: str = "warn",
+    name: str | None = None,
+    decimal: str = ".",
+) -> Curve:
+    """Read one residence-time curve from a CSV file, validate it and normalise it to E(t).
+
+    **Arguments:**
+
+    - `path`: the CSV file (see the module docstring for the accepted layout).
+    - `time_column`, `value_column`: column name (case-insensitive, with or without the unit)
+      or 0-based index; by default recognised from the header spellings, or the first two
+      columns of a two-column file.
+    - `baseline`: subtracted from the values before normalising: ``None`` (nothing),
+      ``'first'`` (the first sample), ``'min'`` (the smallest sample) or a number in the
+      file's value unit. After subtraction values may be slightly negative (noise); they are
+      kept, so as not to bias the fit.
+    - `normalise`: divide by the trapezoid area so the values are the exit-age density E in
+      1/(time unit). Set ``False`` to keep the raw signal.
+    - `min_points`: fewest data rows accepted.
+    - `on_truncated`: what to do when the last value is still above 5 % of the peak (the curve
+      never returned to baseline, so area and moments are biased): ``'warn'`` (default,
+      :class:`DataWarning`), ``'error'`` (:class:`DataError`) or ``'ignore'``.
+    - `name`: the curve's label; by default the file name without extension.
+    - `decimal`: ``'.'`` (default), ``','`` or ``'auto'`` (see :func:`axialmix._csv.read_table`).
+
+    **Returns:**
+
+    A :class:`Curve` with time in the file's unit and E in 1/(that unit).
+
+    **Raises:**
+
+    :class:`DataError` (a ``ValueError``) with one line ``"<file>, row <r>: <problem>"`` for a
+    missing, binary or UTF-16 file, missing or extra columns, non-numeric, empty or NaN cells,
+    negative values or times, times not strictly increasing, too few points, an all-zero
+    curve, or values so small or large that normalising would underflow or overflow.
+    """
+    path = Path(path)
+    if on_truncated not in {"warn", "error", "ignore"}:
+        raise ValueError(f"on_truncated must be 'warn', 'error' or 'ignore', got {on_truncated!r}")
+    if not (baseline is None or baseline in ("first", "min") or (
+            isinstance(baseline, int | float) and not isinstance(baseline, bool))):
+        raise ValueError(f"baseline must be None, 'first', 'min' or a number, got {baseline!r}")
+    table = read_table(path, decimal=decimal, suffix_units=tuple(_TIME_UNITS))
+    time_col, value_col = _columns(table, time_column, value_column)
+    time_unit = "s"
+    if time_col.unit is not None:
+        if time_col.unit.lower() not in _TIME_UNITS:
+            raise table.error(f"unknown time unit {time_col.unit!r} in {time_col.label!r} "
+                              f"(known: s, ms, min, h)")
+        time_unit = _TIME_UNITS[time_col.unit.lower()]
+    rows, data = table.numbers([time_col.index, value_col.index])
+    time, value = data[:, 0], data[:, 1]
+    problems = []
+    bad = _first(time < 0)
+    if bad is not None:
+        problems.append((bad, f"negative time {time[bad]:g}"))
+    bad = _first(value < 0)
+    if bad is not None:
+        problems.append((bad, f"negative value {value[bad]:g}"))
+    bad = _first(np.diff(time) <= 0)
+    if bad is not None:
+        kind = "repeated" if time[bad + 1] == time[bad] else "not increasing"
+        problems.append((bad + 1, f"times not increasing ({time[bad + 1]:g} after "
+                         f"{time[bad]:g}; {kind})"))
+    bad = _first(np.abs(data) > LARGEST_VALUE)
+    if bad is not None:
+        problems.append((bad, f"value {np.max(np.abs(data[bad])):g} is too large (above "
+                         f"{LARGEST_VALUE:g}); rescale the column"))
+    if problems:
+        index, problem = min(problems)
+        raise DataError(path, problem, int(rows[index]))
+    if len(time) < min_points:
+        raise DataError(path, f"too few points: {len(time)} data rows, at least {min_points} "
+                        "needed")
+    if baseline == "first":
+        value = value - value[0]
+    elif baseline == "min":
+        value = value - value.min()
+    elif baseline is not None:
+        value = value - float(baseline)
+    peak = float(np.max(np.abs(value)))
+    if peak == 0.0:
+        raise DataError(path, "all-zero curve (no tracer signal above the baseline)")
+    if peak < SMALLEST_PEAK:
+        raise DataError(path, f"values too small (peak {peak:.3g}, below {SMALLEST_PEAK:g}): "
+                        "normalising would underflow; rescale the value column")
+    area = float(np.trapezoid(value / peak, time)) * peak
+    if not math.isfinite(area):
+        raise DataError(path, "the area under the curve overflows; rescale the columns")
+    if area <= 0.0:
+        raise DataError(path, "the curve has no positive area above the baseline")
+    if on_truncated != "ignore" and value[-1] > TAIL_FRACTION * peak:
+        error = DataError(
+            path, f"the curve never returns to baseline (last value {value[-1]:.3g} is "
+            f"{100 * value[-1] / peak:.0f} % of the peak); area and moments are underestimated",
+            int(rows[-1]))
+        if on_truncated == "error":
+            raise error
+        warnings.warn(str(error), DataWarning, stacklevel=2)
+    if normalise:
+        # Divide by the peak first, so that neither the area nor E under- or overflows.
+        value = (value / peak) / (area / peak)
+        if not np.all(np.isfinite(value)):
+            raise DataError(path, "normalising the curve overflows (the sampled time span is "
+                            "too short for its values); rescale the columns")
+    return Curve(
+        name=name if name is not None else path.stem,
+        time=time,
+        value=value,
+        time_unit=time_unit,
+        source=str(path),
+    )
+
+
+def input_files(inputs: Iterable[str | Path], pattern: str = "*.csv") -> list[Path]:
+    """The data files named by paths of files and folders (every CSV file in a folder).
+
+    **Arguments:**
+
+    - `inputs`: file and folder paths.
+    - `pattern`: file-name pattern inside folders, matched case-insensitively (``*.csv``
+      finds ``RUN.CSV`` too).
+
+    **Returns:** the files, folders expanded in file-name order.
+
+    **Raises:** :class:`DataError` for a missing path, an empty folder, or two files with
+    the same name (their results would overwrite each other).
+    """
+    files: list[Path] = []
+    for item in inputs:
+        path = Path(item)
+        if path.is_dir():
+            found = sorted(p for p in path.iterdir()
+                           if p.is_file() and fnmatch.fnmatch(p.name.lower(), pattern.lower()))
+            if not found:
+                raise DataError(path, f"no files matching {pattern!r} in this folder")
+            files += found
+        elif path.is_file():
+            files.append(path)
+        else:
+            raise DataError(path, "file not found")
+    stems = [p.stem for p in files]
+    repeated = sorted({s for s in stems if stems.count(s) > 1})
+    if repeated:
+        raise DataError(repeated[0], "several input files share this name; results would "
+                        "overwrite each other")
+    return files
+
+
+def read_many(
+    paths_or_folder: str | Path | Iterable[str | Path], *, pattern: str = "*.csv", **options
+) -> list[Curve]:
+    """Read several residence-time CSV files (a list of paths, or every CSV in a folder).
+
+    **Arguments:**
+
+    - `paths_or_folder`: a folder (all files matching `pattern`, case-insensitively, sorted
+      by name), one file, or an iterable of file paths.
+    - `pattern`: glob pattern used inside a folder.
+    - `options`: passed to :func:`read_rtd_csv` (``baseline``, ``normalise``, ...).
+
+    **Returns:**
+
+    A list of :class:`Curve`, in file-name order for a folder, in the given order otherwise.
+    The first bad file raises its :class:`DataError`.
+    """
+    if isinstance(paths_or_folder, str | Path):
+        paths = input_files([paths_or_folder], pattern)
+    else:
+        paths = [Path(p) for p in paths_or_folder]
+    return [read_rtd_csv(p, **options) for p in paths]
+
+
+def as_curve(data: Curve | Sequence) -> Curve:
+    """A :class:`Curve` from a curve or a ``(time, values)`` pair (time unit seconds)."""
+    if isinstance(data, Curve):
+        return data
+    try:
+        time, value = data
+    except (TypeError, ValueError):
+        raise ValueError("data must be a Curve or a (time, values) pair") from None
+    return Curve(name="", time=np.asarray(time, dtype=float), value=np.asarray(value, float))
