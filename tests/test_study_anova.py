@@ -13,7 +13,7 @@ from scipy import stats
 
 from fitting.study import anova, is_balanced
 
-TABLES = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "source_tables"
+TABLES = Path(__file__).resolve().parents[1] / "examples" / "source_tables"
 
 
 def _synthetic_two_way(replicates: int, seed: int = 0) -> pd.DataFrame:
