@@ -112,3 +112,56 @@ def test_four_compartment_axial_chain_reading():
     # ... while the RTD of the network still has a finite moment-matched Pe.
     report = equivalent_adm(four_compartment(2.125, 2.125, 0.625, 1.0))
     assert 0 < report.peclet < 10
+
+
+def test_moment_matched_adm_reports_si_velocity_and_dispersion_in_any_time_unit():
+    import axialmix.analytic as analytic
+    from axialmix.network import moment_matched_adm
+
+    network = four_compartment(2.125, 2.125, 0.625, 1.0)
+    moments = residence_time_moments(network)
+    tau, variance = float(moments.mean), float(moments.variance)
+    report = moment_matched_adm(network, 0.5)
+    assert report.mean_residence_time == pytest.approx(tau, rel=1e-12)
+    assert report.peclet == pytest.approx(float(analytic.peclet_from_moments(tau, variance)))
+    assert report.velocity == pytest.approx(0.5 / tau)
+    assert report.axial_dispersion == pytest.approx(0.5**2 / (tau * report.peclet))
+    # Rates per minute: the same tau and Pe in minutes, v and D_z 60 times slower in SI.
+    minutes = moment_matched_adm(network, 0.5, time_unit="min")
+    assert minutes.mean_residence_time == report.mean_residence_time
+    assert minutes.peclet == report.peclet
+    assert minutes.axial_dispersion == pytest.approx(report.axial_dispersion / 60)
+    assert minutes.as_dict()["tau_min"] == pytest.approx(tau)
+    expected = 0.25 / (tau * 60 * minutes.peclet)
+    assert minutes.as_dict()["dispersion_m2_per_s"] == pytest.approx(expected)
+    # Without a length: tau and Pe only.
+    bare = moment_matched_adm(network, None)
+    assert bare.velocity is None and bare.axial_dispersion is None
+    assert bare.peclet == report.peclet
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [({"length": 0.0}, "length must be positive"), ({"length": 1.0, "time_unit": "d"},
+                                                    "time_unit must be one of")],
+)
+def test_moment_matched_adm_rejects_nonsense(kwargs, message):
+    from axialmix.network import moment_matched_adm
+
+    with pytest.raises(ValueError, match=message):
+        moment_matched_adm(tanks_in_series(3, 5.0), **kwargs)
+
+
+def test_renamed_equivalent_adm_and_peclet_warn_and_agree_with_the_new_names():
+    import axialmix.analytic as analytic
+    from axialmix.network import moment_matched_adm
+
+    network = adm_chain(30.0, 20.0, 40)
+    with pytest.warns(DeprecationWarning, match="moment_matched_adm"):
+        old = equivalent_adm(network, length=0.31)
+    new = moment_matched_adm(network, 0.31)
+    assert (old.peclet, old.velocity, old.axial_dispersion) == (
+        new.peclet, new.velocity, new.axial_dispersion)
+    with pytest.warns(DeprecationWarning, match="axialmix.analytic.peclet_from_variance_ratio"):
+        value = peclet_from_variance_ratio(0.25)
+    assert value == float(analytic.peclet_from_variance_ratio(0.25))

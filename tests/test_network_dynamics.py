@@ -436,3 +436,23 @@ def test_radially_symmetric_grid_has_the_rtd_of_its_axial_chain():
 def test_responses_need_an_open_network():
     with pytest.raises(ValueError, match="needs an open network"):
         exit_age(v_blender(), [0.0, 1.0])
+
+
+def test_four_compartment_generator_is_the_written_out_matrix_of_models_section_3():
+    import jax.numpy as jnp
+
+    from axialmix.network import four_compartment_generator
+
+    k_f, k_r, k_s, k_out = 0.9, 0.4, 1.1, 0.7
+    written = jnp.array(
+        [
+            [-(k_f + k_s), k_r, k_s, 0.0],
+            [k_f, -(k_r + k_s), 0.0, k_s],
+            [k_s, 0.0, -(k_f + k_s), k_r],
+            [0.0, k_s, k_f, -(k_s + k_r + k_out)],
+        ]
+    )
+    np.testing.assert_array_equal(four_compartment_generator(k_f, k_r, k_s, k_out), written)
+    np.testing.assert_array_equal(
+        generator_matrix(four_compartment(k_f, k_r, k_s, k_out)), written
+    )

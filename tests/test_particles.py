@@ -426,3 +426,19 @@ def test_identity_history_first_stay_in_inlet_is_geometric(identity_tracer_run):
     k = np.arange(1, top)
     expected = np.append(leave * (1 - leave) ** (k - 1), (1 - leave) ** (top - 1)) * stays.size
     assert _chi_square_p_value(observed, expected) > 1e-3
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "arguments"),
+    [
+        ("v_blender", "particle_v_blender", (10_000,)),
+        ("four_compartment", "particle_four_compartment", ()),
+        ("axial_radial_grid", "particle_axial_radial_grid", (4, 2)),
+    ],
+)
+def test_old_particle_preset_names_warn_and_build_the_same_network(old, new, arguments):
+    with pytest.warns(DeprecationWarning, match=f"axialmix.particles.{new}"):
+        aliased = getattr(particles, old)(*arguments)
+    built = getattr(particles, new)(*arguments)
+    assert aliased.to_network() == built.to_network()
+    assert np.array_equal(aliased.holdups, built.holdups)

@@ -1,7 +1,12 @@
 """Compartment networks: structure → rate matrix → RTD and batch mixing (MODELS.md §3).
 
 The description (:class:`CompartmentNetwork`) is plain, immutable and validated; the models
-are JAX functions of its rates, differentiable and jit/vmap clean.
+are JAX functions of its rates, differentiable and jit/vmap clean. The equivalent
+axial dispersion model of a network is :func:`moment_matched_adm`; the four-compartment
+structure is defined once (:data:`FOUR_COMPARTMENT_CONNECTIONS`).
+
+Deprecated for one release: :func:`equivalent_adm` (use :func:`moment_matched_adm`) and
+:func:`peclet_from_variance_ratio` (use :func:`axialmix.analytic.peclet_from_variance_ratio`).
 """
 
 from ._chain import (
@@ -11,25 +16,26 @@ from ._chain import (
     chain_peclet,
 )
 from ._description import CompartmentNetwork, Connection, Inlet, Outlet
-from ._dynamics import (
-    ResidenceTimeMoments,
-    compartment_amounts,
-    cumulative_exit_age,
-    exit_age,
-    four_compartment_exit_age,
-    four_compartment_generator,
-    generator_matrix,
-    outlet_response,
-    residence_time_moments,
-    species_fractions,
-    step_matrix,
-)
 from ._equivalent import (
+    TIME_UNITS,
     EquivalentADM,
+    MomentMatchedADM,
     equivalent_adm,
     four_compartment_chain_transport,
+    moment_matched_adm,
     peclet_from_variance_ratio,
 )
+from ._four_compartment import (
+    FOUR_COMPARTMENT_CONNECTIONS,
+    FOUR_COMPARTMENT_INLET,
+    FOUR_COMPARTMENT_OUTLET,
+    FOUR_COMPARTMENT_RATES,
+    FOUR_COMPARTMENTS,
+    four_compartment_exit_age,
+    four_compartment_generator,
+)
+from ._matrices import generator_matrix, step_matrix
+from ._moments import ResidenceTimeMoments, residence_time_moments
 from ._presets import (
     V_BLENDER_LOADINGS,
     adm_chain,
@@ -40,14 +46,28 @@ from ._presets import (
     v_blender,
     v_blender_species_amounts,
 )
+from ._responses import (
+    compartment_amounts,
+    cumulative_exit_age,
+    exit_age,
+    outlet_response,
+    species_fractions,
+)
 
 __all__ = [
     "CompartmentNetwork",
     "Connection",
     "EquivalentADM",
+    "FOUR_COMPARTMENTS",
+    "FOUR_COMPARTMENT_CONNECTIONS",
+    "FOUR_COMPARTMENT_INLET",
+    "FOUR_COMPARTMENT_OUTLET",
+    "FOUR_COMPARTMENT_RATES",
     "Inlet",
+    "MomentMatchedADM",
     "Outlet",
     "ResidenceTimeMoments",
+    "TIME_UNITS",
     "V_BLENDER_LOADINGS",
     "adm_chain",
     "axial_radial_grid",
@@ -65,6 +85,7 @@ __all__ = [
     "four_compartment_generator",
     "generator_matrix",
     "loading_amounts",
+    "moment_matched_adm",
     "outlet_response",
     "peclet_from_variance_ratio",
     "residence_time_moments",

@@ -2,7 +2,7 @@
 
 Two readings, both documented because they answer different questions:
 
-* **Moment matching** (:func:`equivalent_adm`, any open network): the closed–closed ADM with
+* **Moment matching** (:func:`moment_matched_adm`, any open network): the closed–closed ADM with
   the network's exact mean residence time and variance, ``sigma²/tau² = 2/Pe - 2/Pe² (1 -
   e^{-Pe})``. Always meaningful when the network's variance ratio is below 1 (a single
   stirred tank, the Pe → 0 limit, has ratio 1; bypassing or dead zones can exceed it, and
@@ -23,23 +23,128 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import equinox as eqx
 from jax.typing import ArrayLike
-from scipy.optimize import brentq
 
+from .._deprecation import warn_deprecated
+from ..analytic.inverse import peclet_from_variance_ratio as _peclet_from_ratio
 from ._chain import backflow_chain_transport
 from ._description import CompartmentNetwork
-from ._dynamics import residence_time_moments
+from ._moments import residence_time_moments
 
 __all__ = [
+    "TIME_UNITS",
     "EquivalentADM",
+    "MomentMatchedADM",
     "equivalent_adm",
     "four_compartment_chain_transport",
+    "moment_matched_adm",
     "peclet_from_variance_ratio",
 ]
 
+TIME_UNITS = {"ms": 1e-3, "s": 1.0, "min": 60.0, "h": 3600.0}
+"""Seconds in each time unit a network's rates may be given in (rates in 1/unit)."""
+
+
+class MomentMatchedADM(eqx.Module):
+    """The closed–closed ADM with the same mean and variance as a network, with its units.
+
+    Times are in the network's time unit (:attr:`time_unit`); velocity and dispersion are
+    in SI (m/s, m²/s) whatever that unit, and ``None`` when no length was given.
+    """
+
+    mean_residence_time: float
+    """``tau``, in :attr:`time_unit`."""
+    variance: float
+    """Variance of the residence time, in :attr:`time_unit` squared."""
+    variance_ratio: float
+    """``sigma² / tau²`` (dimensionless)."""
+    peclet: float
+    """``Pe`` (dimensionless; NaN when the variance ratio is not in (0, 1))."""
+    time_unit: str
+    """Unit of the times (and 1/unit of the rates): one of :data:`TIME_UNITS`."""
+    length: float | None
+    """Blender length ``L`` (m), or ``None``."""
+    velocity: float | None
+    """``v = L / tau`` (m/s), or ``None`` without a length."""
+    axial_dispersion: float | None
+    """``D_z = v L / Pe = L² / (tau Pe)`` (m²/s), or ``None`` without a length."""
+
+    def as_dict(self) -> dict[str, float | str | None]:
+        """The values with their units in the keys (NaN given as ``None``, for JSON)."""
+
+        def finite(value):
+            return None if value is None or not math.isfinite(value) else float(value)
+
+        unit = self.time_unit
+        return {
+            f"tau_{unit}": finite(self.mean_residence_time),
+            f"variance_{unit}2": finite(self.variance),
+            "variance_ratio": finite(self.variance_ratio),
+            "peclet": finite(self.peclet),
+            "length_m": self.length,
+            "velocity_m_per_s": finite(self.velocity),
+            "dispersion_m2_per_s": finite(self.axial_dispersion),
+        }
+
+
+def moment_matched_adm(
+    network: CompartmentNetwork,
+    length: float | None,
+    *,
+    time_unit: str = "s",
+    rates: ArrayLike | None = None,
+    outflow_rates: ArrayLike | None = None,
+) -> MomentMatchedADM:
+    """The closed–closed ADM with the network's exact mean residence time and variance.
+
+    ``tau`` is the mean, ``Pe`` solves ``sigma²/tau² = 2/Pe - 2/Pe² (1 - e^{-Pe})``
+    (:func:`axialmix.analytic.peclet_from_variance_ratio`), and with a length
+    ``v = L / tau``, ``D_z = v L / Pe``, converted to SI from the rates' time unit.
+
+    **Arguments:**
+
+    - `network`: an open network.
+    - `length`: blender length ``L`` (m), or ``None`` for ``tau`` and ``Pe`` only; there
+      is no default, since ``v`` and ``D_z`` scale with it.
+    - `time_unit`: the unit of time of the rates (rates in 1/unit): ``"ms"``, ``"s"``,
+      ``"min"`` or ``"h"``.
+    - `rates`, `outflow_rates`: optional rates (e.g. fitted values) in network order.
+
+    **Returns:**
+
+    :class:`MomentMatchedADM` (``tau``, ``sigma²``, ``sigma²/tau²``, ``Pe`` in the time
+    unit; ``v`` in m/s and ``D_z`` in m²/s).
+    """
+    if time_unit not in TIME_UNITS:
+        raise ValueError(f"time_unit must be one of {sorted(TIME_UNITS)}, got {time_unit!r}.")
+    if length is not None:
+        length = float(length)
+        if not (math.isfinite(length) and length > 0):
+            raise ValueError(f"length must be positive and finite (m), got {length}.")
+    moments = residence_time_moments(network, rates, outflow_rates)
+    tau = float(moments.mean)
+    variance = float(moments.variance)
+    ratio = variance / tau**2
+    peclet = float(_peclet_from_ratio(ratio))
+    velocity = dispersion = None
+    if length is not None:
+        velocity = length / (tau * TIME_UNITS[time_unit])
+        dispersion = velocity * length / peclet
+    return MomentMatchedADM(
+        mean_residence_time=tau,
+        variance=variance,
+        variance_ratio=ratio,
+        peclet=peclet,
+        time_unit=time_unit,
+        length=length,
+        velocity=velocity,
+        axial_dispersion=dispersion,
+    )
+
 
 class EquivalentADM(NamedTuple):
-    """The closed–closed ADM with the same mean and variance as a network."""
+    """Result of the deprecated :func:`equivalent_adm` (use :func:`moment_matched_adm`)."""
 
     mean_residence_time: float
     """``tau`` (time units)."""
@@ -55,65 +160,40 @@ class EquivalentADM(NamedTuple):
     """``D_z = v L / Pe`` (length² / time)."""
 
 
-def _variance_ratio(peclet: float) -> float:
-    if peclet < 1e-2:
-        # Series of 2/Pe - 2/Pe² (1 - e^{-Pe}); the closed form cancels catastrophically.
-        return 1 - peclet / 3 + peclet**2 / 12 - peclet**3 / 60
-    return 2 / peclet - 2 / peclet**2 * (-math.expm1(-peclet))
-
-
-def peclet_from_variance_ratio(variance_ratio: float) -> float:
-    """Closed–closed Péclet number with ``2/Pe - 2/Pe² (1 - e^{-Pe}) = sigma²/tau²``.
-
-    **Arguments:**
-
-    - `variance_ratio`: ``sigma² / tau²`` (dimensionless).
-
-    **Returns:**
-
-    ``Pe``; NaN when the ratio is not in (0, 1) (no closed–closed ADM has it).
-    """
-    ratio = float(variance_ratio)
-    if not math.isfinite(ratio) or ratio <= 0 or ratio >= 1:
-        return math.nan
-    low, high = 1e-9, 1e9
-    if ratio >= _variance_ratio(low) or ratio <= _variance_ratio(high):
-        return math.nan
-    log_peclet = brentq(
-        lambda log_pe: _variance_ratio(math.exp(log_pe)) - ratio,
-        math.log(low),
-        math.log(high),
-        xtol=1e-14,
-        rtol=1e-14,
-    )
-    return math.exp(log_peclet)
-
-
 def equivalent_adm(
     network: CompartmentNetwork,
     length: float = 1.0,
     rates: ArrayLike | None = None,
     outflow_rates: ArrayLike | None = None,
 ) -> EquivalentADM:
-    """The closed–closed ADM with the network's exact mean residence time and variance.
+    """Deprecated: use :func:`moment_matched_adm` (an explicit length, SI units).
 
-    **Arguments:**
-
-    - `network`: an open network.
-    - `length`: blender length ``L`` (m), to express ``v`` and ``D_z``.
-    - `rates`, `outflow_rates`: optional rates (e.g. fitted values) in network order.
-
-    **Returns:**
-
-    :class:`EquivalentADM` with ``tau``, ``sigma²``, ``sigma²/tau²``, ``Pe``, ``v``, ``D_z``.
+    Kept for one release; ``v`` and ``D_z`` are in the network's units of time and length.
     """
-    moments = residence_time_moments(network, rates, outflow_rates)
-    tau = float(moments.mean)
-    variance = float(moments.variance)
-    ratio = variance / tau**2
-    peclet = peclet_from_variance_ratio(ratio)
-    velocity = length / tau
-    return EquivalentADM(tau, variance, ratio, peclet, velocity, velocity * length / peclet)
+    warn_deprecated(
+        "axialmix.network.equivalent_adm", "axialmix.network.moment_matched_adm"
+    )
+    report = moment_matched_adm(network, length, rates=rates, outflow_rates=outflow_rates)
+    return EquivalentADM(
+        report.mean_residence_time,
+        report.variance,
+        report.variance_ratio,
+        report.peclet,
+        report.velocity,
+        report.axial_dispersion,
+    )
+
+
+def peclet_from_variance_ratio(variance_ratio: float) -> float:
+    """Deprecated: use :func:`axialmix.analytic.peclet_from_variance_ratio`.
+
+    Kept for one release; returns a Python float (NaN outside (0, 1)).
+    """
+    warn_deprecated(
+        "axialmix.network.peclet_from_variance_ratio",
+        "axialmix.analytic.peclet_from_variance_ratio",
+    )
+    return float(_peclet_from_ratio(variance_ratio))
 
 
 def four_compartment_chain_transport(
@@ -122,7 +202,7 @@ def four_compartment_chain_transport(
     """Velocity, dispersion and Péclet number of the four-compartment model's axial chain.
 
     Two axial stages of width ``L / 2`` with forward ``k_f`` and backward ``k_r`` (see the
-    module notes for why this differs from :func:`equivalent_adm`).
+    module notes for why this differs from :func:`moment_matched_adm`).
 
     **Arguments:**
 

@@ -10,6 +10,12 @@ import numpy as np
 
 from ._chain import Scheme, backflow_chain_rates, backflow_ratio_for_peclet
 from ._description import CompartmentNetwork, Connection
+from ._four_compartment import (
+    FOUR_COMPARTMENT_CONNECTIONS,
+    FOUR_COMPARTMENT_INLET,
+    FOUR_COMPARTMENT_OUTLET,
+    FOUR_COMPARTMENTS,
+)
 
 __all__ = [
     "V_BLENDER_LOADINGS",
@@ -57,7 +63,9 @@ def four_compartment(
 
     Compartments ``C1 C2`` (first row) and ``C3 C4`` (second row); forward ``k_f`` for
     C1→C2 and C3→C4, backward ``k_r`` for C2→C1 and C4→C3, side exchange ``k_s`` both ways
-    for C1↔C3 and C2↔C4; feed into C1, outflow ``k_out`` from C4.
+    for C1↔C3 and C2↔C4; feed into C1, outflow ``k_out`` from C4. The structure is the
+    table :data:`axialmix.network.FOUR_COMPARTMENT_CONNECTIONS`, shared with
+    :func:`four_compartment_generator`.
 
     **Arguments:**
 
@@ -74,18 +82,15 @@ def four_compartment(
     """
     k_f, k_r, k_s = (_non_negative(v, n) for v, n in ((k_f, "k_f"), (k_r, "k_r"), (k_s, "k_s")))
     k_out = 0.0 if k_out is None else _non_negative(k_out, "k_out")
-    connections = [
-        ("C1", "C2", k_f), ("C3", "C4", k_f),
-        ("C2", "C1", k_r), ("C4", "C3", k_r),
-        ("C1", "C3", k_s), ("C3", "C1", k_s),
-        ("C2", "C4", k_s), ("C4", "C2", k_s),
-    ]
+    value = {"k_f": k_f, "k_r": k_r, "k_s": k_s}
+    connections = [(source, target, value[rate])
+                   for source, target, rate in FOUR_COMPARTMENT_CONNECTIONS]
     closed = k_out == 0
     network = CompartmentNetwork(
-        compartments=("C1", "C2", "C3", "C4"),
+        compartments=FOUR_COMPARTMENTS,
         connections=connections,
-        inlets=() if closed else (("C1", 1.0),),
-        outlets=() if closed else (("C4", k_out),),
+        inlets=() if closed else ((FOUR_COMPARTMENT_INLET, 1.0),),
+        outlets=() if closed else ((FOUR_COMPARTMENT_OUTLET, k_out),),
         time_step=time_step,
         description=f"four-compartment model k_f={k_f:g}, k_r={k_r:g}, k_s={k_s:g}, "
         f"k_out={k_out:g}",

@@ -14,6 +14,9 @@ from axialmix.particles.feed import check_feed_schedule, constant_feed, feeder_f
 from axialmix.particles.presets import (
     axial_radial_grid,
     four_compartment,
+    particle_axial_radial_grid,
+    particle_four_compartment,
+    particle_v_blender,
     v_blender,
     v_blender_loading,
 )
@@ -47,6 +50,9 @@ __all__ = [
     "exit_age_from_outflow",
     "feeder_feed",
     "four_compartment",
+    "particle_axial_radial_grid",
+    "particle_four_compartment",
+    "particle_v_blender",
     "relative_standard_deviation",
     "sample_compartments",
     "sample_outflow",

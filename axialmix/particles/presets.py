@@ -1,7 +1,10 @@
 """Particle versions of the project's standard networks (built from :mod:`axialmix.network`).
 
-Each returns a :class:`ParticleNetwork` (and, for batch blenders, initial species counts),
-so the simulator runs on exactly the description the mean-field model uses.
+Each ``particle_*`` function returns a :class:`ParticleNetwork` (and
+:func:`v_blender_loading` the initial species counts of a batch blender), so the simulator
+runs on exactly the description the mean-field model uses. The names without the
+``particle_`` prefix are deprecated aliases (one release): they clashed with the mean-field
+presets of :mod:`axialmix.network`, which return compartment networks.
 """
 
 from __future__ import annotations
@@ -11,12 +14,21 @@ from collections.abc import Sequence
 import numpy as np
 
 from axialmix import network as mean_field
+from axialmix._deprecation import deprecated_alias
 from axialmix.particles.description import ParticleNetwork
 
-__all__ = ["v_blender", "v_blender_loading", "four_compartment", "axial_radial_grid"]
+__all__ = [
+    "axial_radial_grid",
+    "four_compartment",
+    "particle_axial_radial_grid",
+    "particle_four_compartment",
+    "particle_v_blender",
+    "v_blender",
+    "v_blender_loading",
+]
 
 
-def v_blender(
+def particle_v_blender(
     particles: int = 1_000_000, exchanges: Sequence[int] = (1000, 100, 100, 1000)
 ) -> ParticleNetwork:
     """The source's batch V-blender chain V1 ... V5 with `particles` in all.
@@ -41,7 +53,7 @@ def v_blender_loading(network: ParticleNetwork, loading: str | Sequence[float] =
 
     **Arguments:**
 
-    - `network`: a V-blender from :func:`v_blender`.
+    - `network`: a V-blender from :func:`particle_v_blender`.
     - `loading`: a name of :data:`axialmix.network.V_BLENDER_LOADINGS` (``"E"`` is the
       source's side-by-side loading 100, 100, 50, 0, 0 % species 1) or five percentages.
 
@@ -52,7 +64,7 @@ def v_blender_loading(network: ParticleNetwork, loading: str | Sequence[float] =
     return np.column_stack([first, network.holdups - first])
 
 
-def four_compartment(
+def particle_four_compartment(
     k_f: float = 2.125,
     k_r: float = 2.125,
     k_s: float = 0.625,
@@ -79,7 +91,7 @@ def four_compartment(
     return ParticleNetwork.from_network(network, time_step=time_step, round_moves=True)
 
 
-def axial_radial_grid(
+def particle_axial_radial_grid(
     n_axial: int = 50,
     n_radial: int = 5,
     *,
@@ -121,3 +133,18 @@ def axial_radial_grid(
         total_holdup=particles_per_compartment * n_axial * n_radial,
     )
     return ParticleNetwork.from_network(network, time_step=time_step)
+
+
+v_blender = deprecated_alias(
+    particle_v_blender, "axialmix.particles.v_blender", "axialmix.particles.particle_v_blender"
+)
+four_compartment = deprecated_alias(
+    particle_four_compartment,
+    "axialmix.particles.four_compartment",
+    "axialmix.particles.particle_four_compartment",
+)
+axial_radial_grid = deprecated_alias(
+    particle_axial_radial_grid,
+    "axialmix.particles.axial_radial_grid",
+    "axialmix.particles.particle_axial_radial_grid",
+)

@@ -1,0 +1,146 @@
+"""Propagation of network states to output times: matrix exponentials or matrix powers.
+
+The states at output times are propagated from one time to the next with ``expm(K h)``
+(continuous) or ``P^k`` (discrete): one matrix for a uniform grid (then a ``lax.scan`` of
+matrix–vector products), one per interval otherwise.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.typing import ArrayLike
+
+from .._validation import concrete_value, require_increasing_times
+from ._description import CompartmentNetwork
+from ._expm import expm
+
+__all__ = [
+    "continuous_states",
+    "discrete_states",
+    "step_indices",
+    "times_array",
+    "uniform_spacing",
+]
+
+
+def uniform_spacing(increments: np.ndarray | None) -> bool:
+    if increments is None or increments.size < 3:
+        return False
+    rest = increments[1:]
+    return bool(np.all(np.abs(rest - rest[0]) <= 1e-12 * max(abs(rest[0]), 1e-300)))
+
+
+def _propagate(
+    transition: Callable[[Array], Array],
+    start: Array,
+    increments: Array,
+    uniform: bool,
+) -> Array:
+    """States after each increment: ``x_0 = T(inc_0) start``, ``x_j = T(inc_j) x_{j-1}``."""
+    first = transition(increments[0]) @ start
+    if increments.shape[0] == 1:
+        return first[None]
+    if uniform:
+        matrix = transition(increments[1])
+
+        def step(state, _):
+            new = matrix @ state
+            return new, new
+
+        _, rest = jax.lax.scan(step, first, None, length=increments.shape[0] - 1)
+    else:
+        matrices = jax.vmap(transition)(increments[1:])
+
+        def step(state, matrix):
+            new = matrix @ state
+            return new, new
+
+        _, rest = jax.lax.scan(step, first, matrices)
+    return jnp.concatenate([first[None], rest], axis=0)
+
+
+def _matrix_power(matrix: Array, exponent: Array) -> Array:
+    """``matrix ** exponent`` for a (possibly traced) non-negative integer, by squaring."""
+    exponent = jnp.asarray(exponent, dtype=jnp.int64)
+
+    def body(carry, _):
+        result, base, k = carry
+        result = jnp.where(k % 2 == 1, result @ base, result)
+        return (result, base @ base, k // 2), None
+
+    identity = jnp.eye(matrix.shape[0], dtype=matrix.dtype)
+    (result, _, _), _ = jax.lax.scan(body, (identity, matrix, exponent), None, length=62)
+    return result
+
+
+def times_array(times: ArrayLike) -> tuple[Array, np.ndarray | None, tuple[int, ...]]:
+    """Times as a 1-D JAX array, as NumPy when concrete (None when traced), and their shape.
+
+    The NumPy copy is taken before any JAX operation: inside ``jit`` every ``jnp`` result
+    is a tracer, and the concrete times decide the propagation strategy.
+    """
+    concrete = concrete_value(times)
+    if concrete is not None:
+        concrete = np.atleast_1d(concrete.astype(float))
+    array = jnp.atleast_1d(jnp.asarray(times, dtype=float))
+    shape = np.shape(times) if concrete is not None else jnp.shape(times)
+    if len(shape) > 1:
+        raise ValueError(f"times must be a scalar or one-dimensional, got shape {shape}.")
+    require_increasing_times("times", concrete if concrete is not None else array)
+    return array, concrete, shape
+
+
+def continuous_states(
+    generator: Array, start: Array, times: Array, concrete: np.ndarray | None
+) -> Array:
+    """``expm(K t_j) start`` for increasing times (zero-clipped: t < 0 gives ``start``)."""
+    if concrete is not None:
+        steps = np.diff(np.maximum(concrete, 0.0), prepend=0.0)
+        return _exponential_states(generator, start, jnp.asarray(steps), uniform_spacing(steps))
+    return _exponential_states(
+        generator, start, jnp.diff(jnp.maximum(times, 0.0), prepend=0.0), False
+    )
+
+
+# Jitted with the strategy static, so that eager calls reuse the compiled propagation.
+@partial(jax.jit, static_argnames="uniform")
+def _exponential_states(generator: Array, start: Array, increments: Array, uniform: bool) -> Array:
+    return _propagate(
+        lambda h: expm(generator * h), start, increments, uniform
+    )
+
+
+@partial(jax.jit, static_argnames="uniform")
+def _power_states(step: Array, start: Array, increments: Array, uniform: bool) -> Array:
+    return _propagate(lambda k: _matrix_power(step, k), start, increments, uniform)
+
+
+def step_indices(network: CompartmentNetwork, concrete: np.ndarray | None) -> np.ndarray:
+    if concrete is None:
+        raise ValueError(
+            "Times of a discrete network must be concrete (not traced): they select steps."
+        )
+    steps = concrete / network.time_step
+    rounded = np.rint(steps)
+    off = np.abs(steps - rounded) > 1e-9 * np.maximum(1.0, np.abs(steps))
+    if np.any(off):
+        raise ValueError(
+            f"times must be multiples of the time step {network.time_step:g}; "
+            f"got {concrete[np.argmax(off)]:g}."
+        )
+    return rounded.astype(np.int64)
+
+
+def discrete_states(step: Array, start: Array, steps: np.ndarray) -> Array:
+    """``P^{k_j} start`` for non-decreasing step counts ``k_j >= 0``."""
+    increments = np.diff(steps, prepend=0)
+    return _power_states(
+        step, start, jnp.asarray(increments), uniform_spacing(increments.astype(float))
+    )
+
