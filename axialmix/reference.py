@@ -67,7 +67,12 @@ def _outlet_history(
     peclet: float, n_cells: int, dtheta: float, n_steps: int, pulse: bool
 ) -> np.ndarray:
     """Outlet concentration at θ = k Δθ, k = 0..n_steps, for a unit pulse or a unit step."""
-    import fipy as fp
+    try:
+        import fipy as fp  # only here: the cross-check is the one user of FiPy
+    except ImportError as error:
+        raise ImportError(
+            "axialmix.reference needs FiPy: pip install 'axialmix[reference]'."
+        ) from error
 
     mesh = fp.Grid1D(nx=int(n_cells), dx=1.0 / n_cells)
     concentration = fp.CellVariable(mesh=mesh, value=0.0, hasOld=True)

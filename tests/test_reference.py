@@ -106,3 +106,20 @@ def test_bad_arguments_raise_one_line_value_errors(kwargs, message):
 def test_negative_times_are_rejected():
     with pytest.raises(ValueError, match="t must be non-negative"):
         exit_age_fipy(np.array([-1.0, 0.0, 1.0]), 1.0, 10.0)
+
+
+def test_importing_axialmix_loads_no_subpackage_and_the_reference_loads_fipy_only_when_called():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, axialmix, axialmix.reference\n"
+        "heavy = [m for m in ('axialmix.network', 'axialmix.adm', 'axialmix.particles',\n"
+        "         'axialmix.trajectories', 'fipy', 'numba', 'matplotlib') if m in sys.modules]\n"
+        "assert heavy == [], heavy\n"
+        "assert axialmix.network.four_compartment is not None\n"
+        "assert 'axialmix.network' in sys.modules\n"
+        "import jax.numpy as jnp\n"
+        "assert jnp.asarray(1.0).dtype == jnp.float64\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
