@@ -286,3 +286,34 @@ def test_fit_with_the_finite_volume_model_recovers_exact_parameters():
 def test_non_increasing_times_raise_value_error_naming_t(function):
     with pytest.raises(ValueError, match="t must be strictly increasing"):
         function(np.array([0.0, 2.0, 1.0]), 1.0, 10.0)
+
+
+@pytest.mark.parametrize("peclet", [1e-3, 4000.0, 1e5])
+def test_default_solver_refuses_a_concrete_peclet_outside_its_verified_range(peclet):
+    from axialmix.adm import VERIFIED_PECLET_RANGE
+
+    low, high = VERIFIED_PECLET_RANGE
+    assert not low <= peclet <= high
+    for function in (exit_age, step_response):
+        with pytest.raises(ValueError, match="^peclet .* outside the range"):
+            function(THETA, 1.0, peclet)
+
+
+def test_traced_peclet_outside_the_verified_range_gives_nan_inside_it_the_curve():
+    from axialmix.adm import VERIFIED_PECLET_RANGE
+
+    low, high = VERIFIED_PECLET_RANGE
+    peclets = jnp.array([0.5 * low, low, 1000.0, high, 1e5])
+    curves = np.asarray(jax.vmap(lambda pe: jit_exit_age(THETA, 1.0, pe))(peclets))
+    assert np.isnan(curves[[0, 4]]).all()
+    inside = curves[1:4]
+    assert np.isfinite(inside).all()
+    for row, pe in zip(inside, peclets[1:4], strict=True):
+        assert peak_error(row, np.asarray(exit_age_closed(THETA, 1.0, float(pe)))) <= 1e-3
+    # Gradients at a Pe inside stay finite (the NaN branch does not leak into them).
+    slope = jax.grad(lambda pe: jnp.sum(jit_exit_age(THETA, 1.0, pe)))(100.0)
+    assert np.isfinite(float(slope))
+    # An explicit config is the user's choice of resolution and is not checked.
+    finer = SolverConfig(cells=1400, max_step=0.003, first_step=5e-4, horizon=1.3)
+    curve = np.asarray(exit_age(THETA, 1.0, 4000.0, config=finer))
+    assert peak_error(curve, np.asarray(exit_age_closed(THETA, 1.0, 4000.0))) <= 1e-3

@@ -33,7 +33,8 @@ Design (chosen for accuracy at every Peclet number at a small, predictable cost)
   others). Passing ``config=SolverConfig.for_peclet(max_peclet)`` fixes one level (smooth
   in Pe everywhere; the default curve jumps by up to ~1e-4 of the peak at a level edge).
   Default accuracy: max |E - E_exact| <= 1e-3 of the peak (typically 1e-5 to 6e-4) for
-  Pe from 0.01 to about 4000.
+  Pe in :data:`VERIFIED_PECLET_RANGE` (2e-3 to 3500, measured); outside it the defaults
+  refuse a concrete Pe (ValueError naming peclet) and return NaN for a traced one.
 * **Derivatives**: the Peclet sensitivities of the node curves come from one complex-step
   solve (Pe + i h, h = 1e-20 Pe; exact to round-off, no cancellation) inside a custom JVP,
   so reverse mode stores no solver states and a gradient costs about 1.5-2.5 forward
@@ -42,12 +43,13 @@ Design (chosen for accuracy at every Peclet number at a small, predictable cost)
   they agree with finite differences of the same solver to round-off.
 """
 
-from axialmix.adm._config import SolverConfig
+from axialmix.adm._config import VERIFIED_PECLET_RANGE, SolverConfig
 from axialmix.adm._outlet import dimensionless_parameters, exit_age, outlet_response, step_response
 from axialmix.adm._profiles import profiles
 
 __all__ = [
     "SolverConfig",
+    "VERIFIED_PECLET_RANGE",
     "dimensionless_parameters",
     "exit_age",
     "outlet_response",

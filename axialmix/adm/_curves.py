@@ -8,7 +8,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from axialmix.adm._config import SolverConfig, default_configs, peclet_level_bounds
+from axialmix.adm._config import (
+    VERIFIED_PECLET_RANGE,
+    SolverConfig,
+    default_configs,
+    peclet_level_bounds,
+)
 from axialmix.adm._solver import grid_operator, propagate
 
 __all__ = ["dimensionless_curves", "node_curves"]
@@ -342,10 +347,18 @@ def dimensionless_curves(
         index = int(np.searchsorted(peclet_level_bounds(), float(peclet), side="left"))
         return _evaluate(default_configs()[index], kinds, thetas, peclet)
     _, _, all_nodes, horizons = _level_table()
+    # Outside the verified range the defaults are not accurate (0.41 of the peak at Pe = 1e5):
+    # a traced Pe cannot raise, so the curves are NaN there; the solve runs on a Pe inside.
+    low, high = VERIFIED_PECLET_RANGE
+    verified = (peclet >= low) & (peclet <= high)
+    peclet = jnp.where(verified, peclet, jnp.clip(peclet, low, high))
     index = _level_index(peclet)
     inlets = _inlets(kinds)
     flat = _default_curves(inlets, peclet)
     curves = {inlet: (flat[2 * i], flat[2 * i + 1]) for i, inlet in enumerate(inlets)}
     nodes = jnp.asarray(all_nodes)[index]
     horizon = jnp.asarray(horizons)[index]
-    return _interpolate(nodes, horizon, curves, kinds, thetas)
+    return tuple(
+        jnp.where(verified, curve, jnp.nan)
+        for curve in _interpolate(nodes, horizon, curves, kinds, thetas)
+    )

@@ -12,7 +12,7 @@ from axialmix._validation import (
     require_increasing_times,
     require_positive,
 )
-from axialmix.adm._config import SolverConfig
+from axialmix.adm._config import VERIFIED_PECLET_RANGE, SolverConfig
 from axialmix.adm._curves import dimensionless_curves
 
 __all__ = ["dimensionless_parameters", "exit_age", "outlet_response", "step_response"]
@@ -28,6 +28,14 @@ def _check_parameters(t: ArrayLike, tau: ArrayLike, peclet: ArrayLike, config) -
             raise ValueError(f"{name} must be a scalar, got shape {array.shape} (use jax.vmap)")
     if config is not None and not isinstance(config, SolverConfig):
         raise ValueError(f"config must be a SolverConfig or None, got {type(config).__name__}")
+    low, high = VERIFIED_PECLET_RANGE
+    value = concrete_value(peclet)
+    if config is None and value is not None and not ((value >= low) & (value <= high)).all():
+        raise ValueError(
+            f"peclet {float(value):g} is outside the range the default finite-volume settings "
+            f"are verified for ({low:g} to {high:g}: error below 1e-3 of the peak); use "
+            "axialmix.analytic.exit_age_closed, or pass an explicit SolverConfig"
+        )
 
 
 def exit_age(
@@ -37,8 +45,10 @@ def exit_age(
 
     The outlet concentration after an ideal pulse at the Danckwerts inlet (MODELS.md
     section 2). With the default settings the error is below 1e-3 of the peak (typically
-    1e-5 to 6e-4) for Peclet numbers from 0.01 to about 4000; jit-, grad- and vmap-able in
-    `tau` and `peclet`.
+    1e-5 to 6e-4) for Peclet numbers in :data:`VERIFIED_PECLET_RANGE` (2e-3 to 3500);
+    outside it a concrete `peclet` raises ValueError and a traced one gives NaN (the
+    same for every function of this module). jit-, grad- and vmap-able in `tau` and
+    `peclet`.
 
     **Arguments:**
 
