@@ -26,11 +26,12 @@ import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["AnovaSource", "AnovaTable", "anova", "is_balanced"]
+__all__ = ["AnovaSource", "AnovaTable", "anova", "is_balanced", "read_study_table"]
 
 _SS_TYPES = (1, 2, 3)
 
@@ -154,6 +155,36 @@ def is_balanced(table: Mapping[str, Sequence[Any]], factors: Sequence[str]) -> b
         counts[cell] = counts.get(cell, 0) + 1
     n_cells = math.prod(len(level) for level in levels)
     return len(counts) == n_cells and len(set(counts.values())) == 1
+
+
+def read_study_table(path: str | Path, columns: Sequence[str]) -> dict[str, list[str]]:
+    """Read the named columns of a study table (one row per run) as text cells.
+
+    **Arguments:**
+
+    - `path`: a CSV file with a header row (``#`` comment lines allowed; delimiter detected
+      as for curves, see :mod:`axialmix._csv`).
+    - `columns`: the column names wanted (case-insensitive; a unit in the header is allowed).
+
+    **Returns:** ``{name: [cell, ...]}`` in the order of the rows, names as given.
+
+    **Raises:** :class:`axialmix._csv.DataError` (one line, file and row) for a missing
+    column, a ragged row, an empty cell or an unreadable file.
+    """
+    from axialmix._csv import DataError, read_table
+
+    table = read_table(path, header=True)
+    found = [table.column(name) for name in columns]
+    out: dict[str, list[str]] = {name: [] for name in columns}
+    for number, cells in table.rows():
+        for name, column in zip(columns, found, strict=True):
+            cell = cells[column.index].strip().strip('"').strip()
+            if cell == "":
+                raise DataError(table.path, f"empty cell in column {column.label!r}", number)
+            out[name].append(cell)
+    if not out[columns[0]]:
+        raise DataError(table.path, "no data rows under the header")
+    return out
 
 
 def _term_name(factors: tuple[str, ...]) -> str:
