@@ -20,9 +20,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fitting.io import Curve
+from axialmix._progress import progress_bar
+from fitting.data import Curve
+from fitting.losses import LOSSES
 from fitting.models import Model, get_model
-from fitting.objective import LOSSES
 
 ProgressCallback = Callable[[int, int, float], None]
 
@@ -101,27 +102,28 @@ class GridResult:
         return "\n".join(lines)
 
 
-def _stderr_progress() -> ProgressCallback:
-    """A progress printer for stderr: in place on a terminal, every ~10 % otherwise."""
-    interactive = sys.stderr.isatty()
-    last_decile = [-1]
+def _progress_display() -> ProgressCallback:
+    """Progress on standard error through :func:`axialmix._progress.progress_bar`."""
+    state: dict[str, Any] = {}
 
     def show(done: int, total: int, best: float) -> None:
-        decile = (10 * done) // max(total, 1)
-        if not interactive and decile == last_decile[0] and done < total:
-            return
-        last_decile[0] = decile
-        share = (100 * done) // total
-        line = f"grid search: {done:,}/{total:,} points ({share:3d} %), best {best:.4g}"
-        end = "\n" if (not interactive or done >= total) else ""
-        sys.stderr.write(("\r" if interactive else "") + line + end)
-        sys.stderr.flush()
+        bar = state.get("bar")
+        if bar is None:
+            bar = state["bar"] = progress_bar(total=total, description="grid search",
+                                              unit="point")
+        bar.update(done - bar.n)
+        bar.set_postfix_str(f"best {best:.4g}", refresh=False)
+        if done >= total:
+            bar.close()
+            if bar.disable:  # no terminal for the bar: one log line at the end instead
+                print(f"grid search: {done:,}/{total:,} points, best {best:.4g}",
+                      file=sys.stderr, flush=True)
 
     return show
 
 
 def _curve_arrays(curve: Curve | tuple) -> tuple[np.ndarray, np.ndarray]:
-    """Times and values of a :class:`~fitting.io.Curve` or of a ``(times, values)`` pair."""
+    """Times and values of a :class:`~fitting.data.Curve` or of a ``(times, values)`` pair."""
     if isinstance(curve, Curve):
         return np.asarray(curve.time, dtype=float), np.asarray(curve.value, dtype=float)
     times, values = (np.asarray(a, dtype=float) for a in curve)
@@ -140,6 +142,7 @@ def grid_search(
     fixed: Mapping[str, float] | None = None,
     tied: Mapping[str, str] | None = None,
     keep_losses: bool = True,
+    stop: Callable[[], bool] | None = None,
 ) -> GridResult:
     """Evaluate a model at every point of a Cartesian grid and keep the best.
 
@@ -150,16 +153,18 @@ def grid_search(
     **Arguments:**
 
     - `model`: a :class:`~fitting.models.Model` or a built-in model name.
-    - `curve`: the measured curve (a :class:`fitting.io.Curve` or ``(times, values)``).
+    - `curve`: the measured curve (a :class:`fitting.data.Curve` or ``(times, values)``).
     - `grids`: ``{parameter name: grid values}``; the search runs over their product.
     - `loss`: ``'mae'`` (the source's score) or ``'sse'``.
     - `chunk_size`: grid points per compiled call (memory ~ chunk_size × samples).
-    - `progress`: ``True`` prints progress to stderr, ``False`` is silent, a callable gets
+    - `progress`: ``True`` shows a progress bar on stderr, ``False`` is silent, a callable gets
       ``(points done, points in all, best loss so far)`` after each chunk.
     - `fixed`: values for model parameters not searched (defaults: the model's own).
     - `tied`: ``{name: other}``: parameter `name` takes the value of parameter `other` at
       every point (e.g. ``{"k_r": "k_f"}``); tied names are not searched.
     - `keep_losses`: keep the loss at every point (``False`` saves memory on huge grids).
+    - `stop`: optional ``() -> bool`` asked after each chunk; ``True`` stops the search as
+      Ctrl-C does (the command line's interrupt flag).
 
     **Returns:** a :class:`GridResult`.
     """
@@ -226,7 +231,7 @@ def grid_search(
     compiled = chunk_losses.lower(jnp.asarray(0), jnp.asarray(chunk)).compile()
     compile_time = time.perf_counter() - compile_started
 
-    report = _stderr_progress() if progress is True else (progress or None)
+    report = _progress_display() if progress is True else (progress or None)
     losses = np.full(total if keep_losses else 0, np.nan)
     best_loss, best_flat, done = math.inf, 0, 0
     interrupted = False
@@ -243,6 +248,9 @@ def grid_search(
             done += count
             if report is not None:
                 report(done, total, best_loss)
+            if stop is not None and done < total and stop():
+                interrupted = True
+                break
     except KeyboardInterrupt:
         interrupted = True
     wall_time = time.perf_counter() - started

@@ -16,6 +16,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
+import axialmix  # noqa: F401  (float64 before any JAX array is made)
+
 __all__ = ["LOSSES", "mean_absolute_error", "residuals", "sum_of_squares"]
 
 
@@ -77,5 +79,5 @@ def mean_absolute_error(
     return jnp.sum(weights * residual) / jnp.sum(weights)
 
 
-#: The losses :func:`fitting.optimize.fit` accepts, by name.
+#: The losses :func:`fitting.fit.fit` accepts, by name.
 LOSSES = {"sse": sum_of_squares, "mae": mean_absolute_error}

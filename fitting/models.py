@@ -1,7 +1,7 @@
 """Models to fit: named, immutable wrappers around the forward models of :mod:`axialmix`.
 
 A :class:`Model` is a pure JAX function ``f(t, params) -> E(t)`` (``params`` a dict of scalars,
-``E`` in 1/time) together with its parameter names, default :class:`~fitting.optimize.Parameter`
+``E`` in 1/time) together with its parameter names, default :class:`~fitting.parameters.Parameter`
 settings (start value and bounds) and, where one exists, a method-of-moments start value
 computed from a measured curve.
 
@@ -23,24 +23,43 @@ Method-of-moments start values: ``tau`` = mean, ``Pe`` from
 for the open–open model), ``n_tanks = mean² / variance``; for the four-compartment model all
 rates equal, matched to the mean residence time.
 
-The :mod:`axialmix` functions are looked up when a model is first evaluated, so this module
-imports even where an optional forward model is missing.
+Model-specific facts are optional hooks of a :class:`Model`, so no other module needs to know
+a model by name: ``default_starts`` (how many starts a fit makes by default),
+``equivalent_adm`` (the closed–closed ADM equivalent to fitted values, with units, computed
+by :mod:`axialmix`) and ``statements`` (facts about a fit in words, e.g. the
+four-compartment model's twin solutions).
 """
 
 from __future__ import annotations
 
-import functools
-import importlib
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-from fitting.io import Curve
-from fitting.optimize import Parameter, Parameters
+from axialmix.adm import exit_age as _fv_exit_age
+from axialmix.analytic import (
+    exit_age_closed,
+    exit_age_open,
+    exit_age_tanks,
+    peclet_from_moments,
+)
+from axialmix.network import (
+    CompartmentNetwork,
+    four_compartment_exit_age,
+    moment_matched_adm,
+    residence_time_moments,
+)
+from axialmix.network import exit_age as _network_exit_age
+from axialmix.network import four_compartment as _four_compartment_network
+from fitting.data import Curve, seconds_per
+from fitting.parameters import Parameter, Parameters, clip_into_bounds
 
 __all__ = [
     "MODELS",
@@ -57,6 +76,12 @@ __all__ = [
 ]
 
 ModelFunction = Callable[..., object]
+#: ``(values, length_m or None, time_unit) -> {key: value}``: the equivalent closed–closed
+#: ADM of fitted values, units in the keys (``tau_<unit>``, ``peclet``, ``velocity_m_per_s``,
+#: ``dispersion_m2_per_s``, ...; ``None`` where undefined).
+EquivalentADM = Callable[[Mapping[str, float], "float | None", str], dict[str, Any]]
+#: ``(values, settings) -> [sentence, ...]``: facts about a fit of this model in words.
+Statements = Callable[[Mapping[str, float], Mapping[str, Parameter]], list[str]]
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,10 +95,14 @@ class Model:
     - `function`: ``f(t, params) -> E``: ``t`` an array of times (unit T), ``params`` a dict
       of scalar JAX values, returns the exit-age density at ``t`` (unit 1/T). Must be
       jit-, grad- and vmap-able.
-    - `defaults`: one :class:`~fitting.optimize.Parameter` per name (start value, bounds).
+    - `defaults`: one :class:`~fitting.parameters.Parameter` per name (start value, bounds).
     - `initial_guess`: optional ``curve -> {name: value}`` start values from the curve's
-      moments; used when :func:`~fitting.optimize.fit` is given no start values.
+      moments; used when :func:`~fitting.fit.fit` is given no start values.
     - `description`: one line for reports.
+    - `default_starts`: number of starts of a fit by default; ``None``: the start values
+      and, when it differs, the moment estimate.
+    - `equivalent_adm`: optional hook, see :data:`EquivalentADM`.
+    - `statements`: optional hook, see :data:`Statements`.
     """
 
     name: str
@@ -82,6 +111,9 @@ class Model:
     defaults: Mapping[str, Parameter] = field(repr=False)
     initial_guess: Callable[[Curve], dict[str, float]] | None = field(default=None, repr=False)
     description: str = ""
+    default_starts: int | None = None
+    equivalent_adm: EquivalentADM | None = field(default=None, repr=False)
+    statements: Statements | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         names = tuple(self.parameter_names)
@@ -92,6 +124,8 @@ class Model:
         missing = [n for n in names if n not in self.defaults]
         if missing:
             raise ValueError(f"model {self.name!r}: no default for parameter(s) {missing}")
+        if self.default_starts is not None and self.default_starts < 1:
+            raise ValueError(f"model {self.name!r}: default_starts must be at least 1")
         object.__setattr__(self, "parameter_names", names)
         object.__setattr__(
             self, "defaults", {n: _as_parameter(self.defaults[n], n) for n in names}
@@ -102,7 +136,7 @@ class Model:
         return self.function(time, {n: params[n] for n in self.parameter_names})
 
     def parameters(self, curve: Curve | None = None) -> Parameters:
-        """A fresh :class:`~fitting.optimize.Parameters` with the defaults.
+        """A fresh :class:`~fitting.parameters.Parameters` with the defaults.
 
         With a `curve` and a method-of-moments guess available, the start values are the
         moment estimates (clipped into the bounds).
@@ -111,8 +145,13 @@ class Model:
         if curve is not None and self.initial_guess is not None:
             for name, value in self.initial_guess(curve).items():
                 if name in params and np.isfinite(value):
-                    params[name] = params[name].replace(value=_clip(value, params[name]))
+                    params[name] = params[name].replace(
+                        value=clip_into_bounds(value, params[name]))
         return params
+
+    def facts(self, values: Mapping[str, float], settings: Mapping[str, Parameter]) -> list[str]:
+        """The model's :data:`Statements` about fitted `values` (empty without the hook)."""
+        return [] if self.statements is None else list(self.statements(values, settings))
 
 
 def _as_parameter(value: Parameter | float, name: str) -> Parameter:
@@ -122,28 +161,6 @@ def _as_parameter(value: Parameter | float, name: str) -> Parameter:
         return Parameter(float(value))
     except (TypeError, ValueError):
         raise ValueError(f"parameter {name!r}: expected a Parameter or a number") from None
-
-
-def _clip(value: float, parameter: Parameter) -> float:
-    """Move a start value strictly inside the parameter's bounds."""
-    low = parameter.min if parameter.min is not None else -np.inf
-    high = parameter.max if parameter.max is not None else np.inf
-    if np.isfinite(low) and np.isfinite(high):
-        margin = 1e-3 * (high - low)
-        return float(np.clip(value, low + margin, high - margin))
-    if np.isfinite(low) and value <= low:
-        return float(low + max(abs(low), 1.0) * 1e-3)
-    if np.isfinite(high) and value >= high:
-        return float(high - max(abs(high), 1.0) * 1e-3)
-    return float(value)
-
-
-def _lookup(module: str, name: str) -> Callable:
-    """The function `name` of `module`, with a one-line error if it is not available."""
-    try:
-        return getattr(importlib.import_module(module), name)
-    except (ImportError, AttributeError):
-        raise ImportError(f"this model needs {module}.{name}, which is not available") from None
 
 
 def moment_estimates(curve: Curve) -> tuple[float, float]:
@@ -170,18 +187,14 @@ def moment_estimates(curve: Curve) -> tuple[float, float]:
     return float(mean), float(variance)
 
 
-@functools.cache
-def _compiled_peclet_from_moments() -> Callable:
-    """:func:`axialmix.analytic.peclet_from_moments`, jitted (NaN outside its range)."""
-    import jax
-
-    return jax.jit(_lookup("axialmix.analytic", "peclet_from_moments"))
+#: :func:`axialmix.analytic.peclet_from_moments`, jitted (NaN outside its range).
+_peclet_from_moments = jax.jit(peclet_from_moments)
 
 
 def _adm_guess(curve: Curve) -> dict[str, float]:
     mean, variance = moment_estimates(curve)
     # NaN (keep the default) for a variance no closed-closed ADM has (ratio >= 1).
-    peclet = float(_compiled_peclet_from_moments()(mean, variance))
+    peclet = float(_peclet_from_moments(mean, variance))
     return {"tau": mean, "peclet": peclet}
 
 
@@ -190,20 +203,38 @@ def _tanks_guess(curve: Curve) -> dict[str, float]:
     return {"tau": mean, "n_tanks": mean**2 / variance if variance > 0 else math.nan}
 
 
+def _finite(value: float | None) -> float | None:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+def _closed_adm_transport(values: Mapping[str, float], length: float | None,
+                          time_unit: str) -> dict[str, Any]:
+    """Velocity and dispersion of a closed–closed ADM fit: ``v = L / tau``,
+    ``D_z = L² / (tau Pe)``, tau converted to seconds (MODELS.md section 2)."""
+    tau, peclet = float(values["tau"]), float(values["peclet"])
+    tau_s = tau * seconds_per(time_unit)
+    velocity = dispersion = None
+    if length is not None:
+        velocity = length / tau_s if tau_s > 0 else math.nan
+        dispersion = length**2 / (tau_s * peclet) if tau_s > 0 and peclet > 0 else math.nan
+    return {f"tau_{time_unit}": _finite(tau), "peclet": _finite(peclet), "length_m": length,
+            "velocity_m_per_s": _finite(velocity), "dispersion_m2_per_s": _finite(dispersion)}
+
+
 def _adm_closed_function(t, p):
-    return _lookup("axialmix.analytic", "exit_age_closed")(t, p["tau"], p["peclet"])
+    return exit_age_closed(t, p["tau"], p["peclet"])
 
 
 def _adm_closed_fv_function(t, p):
-    return _lookup("axialmix.adm", "exit_age")(t, p["tau"], p["peclet"])
+    return _fv_exit_age(t, p["tau"], p["peclet"])
 
 
 def _adm_open_function(t, p):
-    return _lookup("axialmix.analytic", "exit_age_open")(t, p["tau"], p["peclet"])
+    return exit_age_open(t, p["tau"], p["peclet"])
 
 
 def _tanks_function(t, p):
-    return _lookup("axialmix.analytic", "exit_age_tanks")(t, p["tau"], p["n_tanks"])
+    return exit_age_tanks(t, p["tau"], p["n_tanks"])
 
 
 def _adm_defaults() -> dict[str, Parameter]:
@@ -217,6 +248,7 @@ adm_closed = Model(
     defaults=_adm_defaults(),
     initial_guess=_adm_guess,
     description="axial dispersion model, closed-closed (Danckwerts), exact",
+    equivalent_adm=_closed_adm_transport,
 )
 
 adm_closed_fv = Model(
@@ -226,6 +258,7 @@ adm_closed_fv = Model(
     defaults=_adm_defaults(),
     initial_guess=_adm_guess,
     description="axial dispersion model, closed-closed (Danckwerts), finite volumes",
+    equivalent_adm=_closed_adm_transport,
 )
 
 adm_open = Model(
@@ -247,40 +280,67 @@ tanks = Model(
 )
 
 
-# --- the four-compartment network (MODELS.md section 3) -------------------------------------
+# --- the four-compartment network (MODELS.md section 3; defined in axialmix.network) ----------
 
 FOUR_COMPARTMENT_NAMES = ("k_f", "k_r", "k_s", "k_out")
-
-
-def _four_compartment_rate_matrix(k_f: float, k_r: float, k_s: float, k_out: float) -> np.ndarray:
-    """Rate matrix K of dm/dt = K m for the 2 × 2 layout (1 inlet, 4 outlet), MODELS.md §3."""
-    return np.array(
-        [
-            [-(k_f + k_s), k_r, k_s, 0.0],
-            [k_f, -(k_r + k_s), 0.0, k_s],
-            [k_s, 0.0, -(k_f + k_s), k_r],
-            [0.0, k_s, k_f, -(k_s + k_r) - k_out],
-        ]
-    )
+#: Starts of a compartment-network fit by default: their losses have several local minima
+#: (the four-compartment model's twin solutions among them).
+NETWORK_STARTS = 8
+#: |ln(k_r / k_f)| and |ln(k_s / k_f)| below this count as equal for the mirror statements.
+MIRROR_CLOSENESS = 0.05
 
 
 def _four_compartment_guess(curve: Curve) -> dict[str, float]:
     """All rates equal to k, with k matched to the measured mean residence time.
 
-    The mean residence time of a linear compartment network fed a unit pulse into
-    compartment 1 is ``1ᵀ (-K)⁻¹ e_1``; with all rates equal to k it is ``m_1 / k``, where
-    ``m_1`` is its value for k = 1.
+    The mean residence time of a linear compartment network scales as 1/k when all its rates
+    are multiplied by k; with all rates equal to k it is ``m_1 / k``, where ``m_1`` is its
+    value for k = 1 (:func:`axialmix.network.residence_time_moments`).
     """
     mean, _ = moment_estimates(curve)
-    unit_mean = float(np.sum(np.linalg.solve(-_four_compartment_rate_matrix(1, 1, 1, 1),
-                                             np.eye(4)[0])))
-    rate = unit_mean / mean
-    return dict.fromkeys(FOUR_COMPARTMENT_NAMES, rate)
+    unit_mean = float(residence_time_moments(_four_compartment_network(1.0, 1.0, 1.0, 1.0)).mean)
+    return dict.fromkeys(FOUR_COMPARTMENT_NAMES, unit_mean / mean)
 
 
 def _four_compartment_function(t, p):
-    exit_age = _lookup("axialmix.network", "four_compartment_exit_age")
-    return exit_age(t, p["k_f"], p["k_r"], p["k_s"], p["k_out"])
+    return four_compartment_exit_age(t, p["k_f"], p["k_r"], p["k_s"], p["k_out"])
+
+
+def _four_compartment_equivalent(values: Mapping[str, float], length: float | None,
+                                 time_unit: str) -> dict[str, Any]:
+    network = _four_compartment_network(*(float(values[n]) for n in FOUR_COMPARTMENT_NAMES))
+    return moment_matched_adm(network, length, time_unit=time_unit).as_dict()
+
+
+def _mirror_statements(values: Mapping[str, float],
+                       settings: Mapping[str, Parameter]) -> list[str]:
+    """The four-compartment model's exact twin solutions, in words with numbers.
+
+    With ``k_r = k_f`` every connection of the 2 × 2 network is two-way with a single rate,
+    and relabelling compartments 2 and 3 maps the network onto itself with ``k_f`` and
+    ``k_s`` exchanged: ``(k_f, k_f, k_s)`` and ``(k_s, k_s, k_f)`` give the same RTD.
+    """
+    k_f, k_r, k_s = (values[n] for n in ("k_f", "k_r", "k_s"))
+    if not (k_f > 0 and k_r > 0 and k_s > 0):
+        return []
+    tied = (settings["k_r"].expr or "").strip() == "k_f"
+    near_tie = abs(math.log(k_r / k_f)) < MIRROR_CLOSENESS
+    if not (tied or near_tie):
+        return []
+    if abs(math.log(k_s / k_f)) < MIRROR_CLOSENESS:
+        return [
+            f"This optimum lies on the mirror line k_f = k_r = k_s (k_f = {k_f:.4g}, "
+            f"k_r = {k_r:.4g}, k_s = {k_s:.4g}): with k_r = k_f the RTD is unchanged when "
+            "k_f and k_s are exchanged, so here the curve does not change to first order "
+            "along (k_f, k_r, k_s) ∝ (+1, +1, -1) and cannot tell forward from side "
+            "exchange; only the second-order curvature holds the fit at this point."
+        ]
+    twin = "exactly" if tied else "almost exactly (k_r is close to k_f)"
+    return [
+        f"Twin solution: with k_r = k_f the RTD is unchanged when k_f and k_s are exchanged, "
+        f"so k_f = {k_s:.4g}, k_s = {k_f:.4g} fits {twin} as well as k_f = {k_f:.4g}, "
+        f"k_s = {k_s:.4g}; the curve alone cannot say which of the two is forward flow."
+    ]
 
 
 four_compartment = Model(
@@ -290,6 +350,9 @@ four_compartment = Model(
     defaults={n: Parameter(1.0, min=0.0) for n in FOUR_COMPARTMENT_NAMES},
     initial_guess=_four_compartment_guess,
     description="four-compartment network (2 x 2; k_f forward, k_r backward, k_s side, k_out)",
+    default_starts=NETWORK_STARTS,
+    equivalent_adm=_four_compartment_equivalent,
+    statements=_mirror_statements,
 )
 
 
@@ -307,8 +370,9 @@ def network_model(
 
     Every rate of the file has a name: ``k_<source>_<target>`` for a connection and
     ``k_out_<outlet>`` for an outflow (non-word characters of compartment names become
-    ``_``). `groups` lets one parameter drive several rates (``{"k_f": ["k_C1_C2",
-    "k_C3_C4"]}``). Rates that are not fitted keep the file's values.
+    ``_``; two rates whose names would coincide are an error). `groups` lets one parameter
+    drive several rates (``{"k_f": ["k_C1_C2", "k_C3_C4"]}``). Rates that are not fitted keep
+    the file's values.
 
     **Arguments:**
 
@@ -321,20 +385,20 @@ def network_model(
     **Returns:**
 
     A :class:`Model` with positive rate parameters (1/time; per step for discrete networks),
-    started at the file's values.
+    started at the file's values, with :data:`NETWORK_STARTS` starts by default.
     """
-    import jax.numpy as jnp
-
-    from axialmix.network import CompartmentNetwork, exit_age
-
     network = CompartmentNetwork.from_json(network_file)
-    rate_index = {
-        _identifier(f"k_{c.source}_{c.target}"): ("connection", i)
-        for i, c in enumerate(network.connections)
-    }
-    rate_index.update({
-        _identifier(f"k_out_{o.compartment}"): ("outflow", j) for j, o in enumerate(network.outlets)
-    })
+    labels = [(f"k_{c.source}_{c.target}", ("connection", i))
+              for i, c in enumerate(network.connections)]
+    labels += [(f"k_out_{o.compartment}", ("outflow", j)) for j, o in enumerate(network.outlets)]
+    rate_index: dict[str, tuple[str, int]] = {}
+    spelled: dict[str, str] = {}
+    for label, where in labels:
+        key = _identifier(label)
+        if key in rate_index:
+            raise ValueError(f"rates {spelled[key]!r} and {label!r} both get the parameter name "
+                             f"{key!r}; rename a compartment")
+        rate_index[key], spelled[key] = where, label
     groups = dict(groups) if groups is not None else {}
     for group, members in groups.items():
         unknown = [m for m in members if m not in rate_index]
@@ -354,17 +418,31 @@ def network_model(
         value = (base_rates if kind == "connection" else base_outflow)[index]
         return float(value) if value > 0 else 1.0
 
-    def function(t, p):
-        rates = jnp.asarray(base_rates)
-        outflow = jnp.asarray(base_outflow)
+    def rates_of(p, module=jnp):
+        rates = module.array(base_rates)
+        outflow = module.array(base_outflow)
         for parameter, rate_names in members.items():
             for rate in rate_names:
                 kind, index = rate_index[rate]
-                if kind == "connection":
-                    rates = rates.at[index].set(p[parameter])
+                if module is jnp:
+                    if kind == "connection":
+                        rates = rates.at[index].set(p[parameter])
+                    else:
+                        outflow = outflow.at[index].set(p[parameter])
+                elif kind == "connection":
+                    rates[index] = p[parameter]
                 else:
-                    outflow = outflow.at[index].set(p[parameter])
-        return exit_age(network, t, rates, outflow)
+                    outflow[index] = p[parameter]
+        return rates, outflow
+
+    def function(t, p):
+        rates, outflow = rates_of(p)
+        return _network_exit_age(network, t, rates, outflow)
+
+    def equivalent(values, length, time_unit):
+        rates, outflow = rates_of({n: float(values[n]) for n in names}, np)
+        return moment_matched_adm(network, length, time_unit=time_unit, rates=rates,
+                                  outflow_rates=outflow).as_dict()
 
     return Model(
         name=name or Path(network_file).stem,
@@ -372,6 +450,8 @@ def network_model(
         function=function,
         defaults={n: Parameter(start(n), min=0.0) for n in names},
         description=f"compartment network from {Path(network_file).name}",
+        default_starts=NETWORK_STARTS,
+        equivalent_adm=equivalent,
     )
 
 
@@ -390,7 +470,7 @@ def custom_model(
     - `name`: the model's name.
     - `fn`: ``fn(t, params) -> E``; ``params`` is a dict of scalar JAX values keyed by the
       names of `parameters`. It must be written in ``jax.numpy`` (jit/grad/vmap-able).
-    - `parameters`: name -> :class:`~fitting.optimize.Parameter` or start value, in order.
+    - `parameters`: name -> :class:`~fitting.parameters.Parameter` or start value, in order.
     - `initial_guess`: optional ``curve -> {name: value}`` start values.
     - `description`: one line for reports.
 

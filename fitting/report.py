@@ -4,83 +4,49 @@ Everything a user sees after ``axialmix fit`` comes from here: the per-curve par
 (value, standard error, 95 % interval, and the grid search beside it when one was run), the
 summary table of several curves, the JSON record of a fit with plain statements about which
 parameters the curve determines, the equivalent axial dispersion of a compartment-network fit,
-and a two-panel PNG (data and fitted curve; residuals). Files are written to a temporary file
-in the target folder and moved into place with :func:`os.replace`, so an interrupted run never
-leaves a half-written file.
+and a two-panel PNG (data and fitted curve; residuals). Files are written by
+:mod:`axialmix._files` (a temporary file moved into place), so an interrupted run never
+leaves a half-written file. Nothing here computes physics: the equivalent ADM comes from the
+model's hook (:meth:`fitting.result.FitResult.equivalent_adm`), Pe from moments from
+:mod:`axialmix.analytic`.
 """
 
 from __future__ import annotations
 
-import csv
 import io
-import json
 import math
-import os
-import tempfile
-from collections.abc import Callable, Mapping, Sequence
+import warnings
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-from scipy.optimize import brentq
 
-if TYPE_CHECKING:
-    from fitting.gridsearch import GridResult
-    from fitting.optimize import FitResult
+from axialmix._files import write_atomic, write_csv, write_json
+from axialmix.analytic import peclet_from_variance_ratio as _peclet_from_variance_ratio
+from fitting.diagnostics import identifiability
+from fitting.gridsearch import GridResult
+from fitting.models import get_model
+from fitting.result import FitResult
+
+__all__ = [
+    "fit_record",
+    "fit_table",
+    "identifiability_statements",
+    "plot_fit",
+    "summary_rows",
+    "summary_table",
+    "text_table",
+    "write_atomic",
+    "write_csv",
+    "write_json",
+]
 
 #: A 95 % interval wider than this multiple of the value (or reaching a bound) means the
 #: curve does not determine the parameter.
 UNDETERMINED_RELATIVE_ERROR = 0.5
 #: Correlations beyond this magnitude mean only a combination of two parameters is determined.
 STRONG_CORRELATION = 0.95
-#: Length of the source's blender 2 (m), used to express network fits as D_z and v.
-BLENDER_LENGTH_M = 0.31
-
-
-# --- atomic files -----------------------------------------------------------------------------
-
-
-def write_atomic(path: str | Path, write: Callable[[Any], None], binary: bool = False) -> Path:
-    """Write a file through a temporary file in the same folder and an atomic rename.
-
-    **Arguments:**
-
-    - `path`: the destination file.
-    - `write`: called with the open temporary file (text or binary) to fill it.
-    - `binary`: open the temporary file in binary mode.
-
-    **Returns:** the destination path.
-    """
-    path = Path(path)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "wb" if binary else "w", **({} if binary else {"newline": ""})) as f:
-            write(f)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(temporary, 0o666 & ~umask)  # mkstemp makes the file private; use the default
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def write_json(path: str | Path, data: Mapping[str, Any]) -> Path:
-    """Write `data` as indented JSON, atomically (see :func:`write_atomic`)."""
-    text = json.dumps(data, indent=2, allow_nan=False) + "\n"
-    return write_atomic(path, lambda f: f.write(text))
-
-
-def write_csv(path: str | Path, header: Sequence[str], rows: Sequence[Sequence[Any]]) -> Path:
-    """Write a CSV table with a header line, atomically (see :func:`write_atomic`)."""
-
-    def fill(f) -> None:
-        writer = csv.writer(f)
-        writer.writerow(header)
-        writer.writerows(rows)
-
-    return write_atomic(path, fill)
 
 
 # --- numbers ------------------------------------------------------------------------------------
@@ -170,13 +136,11 @@ def identifiability_statements(result: FitResult) -> list[str]:
                     "curve determines a combination of them, not each one."
                 )
     if len(names) > 1 and result.loss_name == "sse":
-        from fitting.uncertainty import identifiability
-
         diagnosis = identifiability(result)
         if diagnosis.poorly_determined:
             statements.append(f"Combinations (curvature eigen-analysis, log scale): "
                               f"{diagnosis.summary}.")
-    statements.extend(_mirror_statements(result))
+    statements.extend(result.model.facts(result.values, result.init_params))
     if undetermined:
         statements.append(
             f"Not determined by this curve: {', '.join(undetermined)}; fix or tie them "
@@ -189,109 +153,54 @@ def identifiability_statements(result: FitResult) -> list[str]:
     return statements
 
 
-#: |ln(k_r / k_f)| and |ln(k_s / k_f)| below this count as equal for the mirror statements.
-MIRROR_CLOSENESS = 0.05
-
-
-def _mirror_statements(result: FitResult) -> list[str]:
-    """The four-compartment model's exact twin solutions, in words with numbers.
-
-    With ``k_r = k_f`` every connection of the 2 × 2 network is two-way with a single rate,
-    and relabelling compartments 2 and 3 maps the network onto itself with ``k_f`` and
-    ``k_s`` exchanged: ``(k_f, k_f, k_s)`` and ``(k_s, k_s, k_f)`` give the same RTD.
-    """
-    if result.model.name != "four-compartment":
-        return []
-    k_f, k_r, k_s = (result.values[n] for n in ("k_f", "k_r", "k_s"))
-    if not (k_f > 0 and k_r > 0 and k_s > 0):
-        return []
-    tied = (result.init_params["k_r"].expr or "").strip() == "k_f"
-    near_tie = abs(math.log(k_r / k_f)) < MIRROR_CLOSENESS
-    if not (tied or near_tie):
-        return []
-    if abs(math.log(k_s / k_f)) < MIRROR_CLOSENESS:
-        return [
-            f"This optimum lies on the mirror line k_f = k_r = k_s (k_f = {k_f:.4g}, "
-            f"k_r = {k_r:.4g}, k_s = {k_s:.4g}): with k_r = k_f the RTD is unchanged when "
-            "k_f and k_s are exchanged, so here the curve does not change to first order "
-            "along (k_f, k_r, k_s) ∝ (+1, +1, -1) and cannot tell forward from side "
-            "exchange; only the second-order curvature holds the fit at this point."
-        ]
-    twin = "exactly" if tied else "almost exactly (k_r is close to k_f)"
-    return [
-        f"Twin solution: with k_r = k_f the RTD is unchanged when k_f and k_s are exchanged, "
-        f"so k_f = {k_s:.4g}, k_s = {k_f:.4g} fits {twin} as well as k_f = {k_f:.4g}, "
-        f"k_s = {k_s:.4g}; the curve alone cannot say which of the two is forward flow."
-    ]
-
-
-def _closed_closed_variance_ratio(peclet: float) -> float:
-    """sigma²/tau² of the closed–closed ADM (MODELS.md section 2)."""
-    return 2 / peclet - 2 / peclet**2 * (1 - math.exp(-peclet))
-
-
 def peclet_from_variance_ratio(variance_ratio: float) -> float:
-    """The closed–closed Peclet number whose ``sigma²/tau²`` equals the given ratio.
+    """Deprecated: use :func:`axialmix.analytic.peclet_from_variance_ratio` (kept one release).
 
-    **Arguments:**
+    **Arguments:** `variance_ratio`: ``sigma² / tau²``.
 
-    - `variance_ratio`: ``sigma² / tau²`` of a residence-time distribution, in (0, 1).
-
-    **Returns:** Pe (dimensionless), or NaN when the ratio is outside (0, 1).
+    **Returns:** Pe (NaN outside (0, 1)).
     """
-    if not 0 < variance_ratio < 1:
-        return math.nan
-    # The ratio falls monotonically from 1 (Pe -> 0) to 0 (Pe -> inf).
-    return brentq(lambda pe: _closed_closed_variance_ratio(pe) - variance_ratio, 1e-9, 1e9,
-                  xtol=1e-12, rtol=1e-12)
+    warnings.warn("fitting.report.peclet_from_variance_ratio is deprecated; use "
+                  "axialmix.analytic.peclet_from_variance_ratio", DeprecationWarning,
+                  stacklevel=2)
+    return float(_peclet_from_variance_ratio(variance_ratio))
 
 
 def network_moments(model_name: str, values: Mapping[str, float]) -> tuple[float, float] | None:
-    """Mean and variance of the residence time of a fitted four-compartment network.
+    """Deprecated: use :meth:`fitting.result.FitResult.equivalent_adm` (kept one release).
 
-    **Arguments:**
-
-    - `model_name`: the fitted model's name (only ``'four-compartment'`` is handled).
-    - `values`: fitted rates ``k_f, k_r, k_s, k_out`` (1/time).
-
-    **Returns:** ``(mean, variance)`` in time units, or ``None`` for other models.
+    **Returns:** ``(mean, variance)`` of a model with an equivalent-ADM hook that reports
+    them (networks), in the time unit of its rates, else ``None``.
     """
-    if model_name != "four-compartment":
+    warnings.warn("network_moments is deprecated; use FitResult.equivalent_adm",
+                  DeprecationWarning, stacklevel=2)
+    model = get_model(model_name)
+    record = None if model.equivalent_adm is None else model.equivalent_adm(values, None, "s")
+    if record is None or "variance_s2" not in record:
         return None
-    from axialmix.network import four_compartment, residence_time_moments
-
-    network = four_compartment(*(float(values[n]) for n in ("k_f", "k_r", "k_s", "k_out")))
-    moments = residence_time_moments(network)
-    return float(moments.mean), float(moments.variance)
+    return record["tau_s"], record["variance_s2"]
 
 
-def equivalent_dispersion(
-    mean: float, variance: float, length_m: float = BLENDER_LENGTH_M
-) -> dict[str, float | None]:
-    """The closed–closed ADM with the same mean and variance: tau, Pe, v and D_z.
+def equivalent_dispersion(mean: float, variance: float,
+                          length_m: float | None = None) -> dict[str, float | None]:
+    """Deprecated: the closed–closed ADM with a given mean (s) and variance (s²).
 
-    Moment matching (MODELS.md section 2): ``tau`` = mean, Pe from
-    ``sigma²/tau² = 2/Pe - 2/Pe² (1 - e^{-Pe})``, ``v = L / tau``, ``D_z = v L / Pe``.
+    Use :func:`axialmix.network.moment_matched_adm` or :meth:`FitResult.equivalent_adm`.
+    There is no default length any more: without `length_m`, v and D_z are ``None``.
 
-    **Arguments:**
-
-    - `mean`: mean residence time (s).
-    - `variance`: variance of the residence time (s²).
-    - `length_m`: blender length L (m); the source's blender 2 by default.
-
-    **Returns:** ``{"tau_s", "peclet", "velocity_m_per_s", "dispersion_m2_per_s", "length_m"}``
-    (``None`` where undefined).
+    **Returns:** ``{"tau_s", "peclet", "velocity_m_per_s", "dispersion_m2_per_s",
+    "length_m"}``.
     """
-    peclet = peclet_from_variance_ratio(variance / mean**2) if mean > 0 else math.nan
-    velocity = length_m / mean if mean > 0 else math.nan
-    dispersion = velocity * length_m / peclet if peclet > 0 else math.nan
-    return {
-        "tau_s": _finite(mean),
-        "peclet": _finite(peclet),
-        "velocity_m_per_s": _finite(velocity),
-        "dispersion_m2_per_s": _finite(dispersion),
-        "length_m": float(length_m),
-    }
+    warnings.warn("fitting.report.equivalent_dispersion is deprecated; use "
+                  "FitResult.equivalent_adm(length)", DeprecationWarning, stacklevel=2)
+    peclet = float(_peclet_from_variance_ratio(variance / mean**2)) if mean > 0 else math.nan
+    velocity = dispersion = None
+    if length_m is not None and mean > 0:
+        velocity = length_m / mean
+        dispersion = length_m**2 / (mean * peclet) if peclet > 0 else math.nan
+    return {"tau_s": _finite(mean), "peclet": _finite(peclet),
+            "velocity_m_per_s": _finite(velocity), "dispersion_m2_per_s": _finite(dispersion),
+            "length_m": length_m}
 
 
 # --- tables and records -------------------------------------------------------------------------
@@ -334,7 +243,8 @@ def fit_table(result: FitResult, grid: GridResult | None = None) -> str:
     rows.append(["converged", "yes" if result.converged else "no", "", ""]
                 + (["interrupted" if grid.interrupted else "complete"] if grid is not None
                    else []))
-    title = f"{result.name or 'curve'}: model {result.model.name}, {result.n_points} points"
+    title = (f"{result.name or 'curve'}: model {result.model.name}, {result.n_points} points, "
+             f"times in {result.time_unit}")
     return title + "\n" + text_table(header, rows)
 
 
@@ -342,7 +252,7 @@ def fit_record(
     result: FitResult,
     grid: GridResult | None = None,
     source: str | None = None,
-    length_m: float = BLENDER_LENGTH_M,
+    length_m: float | None = None,
 ) -> dict[str, Any]:
     """The JSON record of one fit.
 
@@ -351,12 +261,14 @@ def fit_record(
     - `result`: the gradient fit.
     - `grid`: the grid search on the same curve, or ``None``.
     - `source`: the data file.
-    - `length_m`: blender length for the equivalent dispersion of network fits (m).
+    - `length_m`: blender length ``L`` (m) for the equivalent ``v`` and ``D_z``; without it
+      only ``tau`` and ``Pe`` are given (there is no default length).
 
     **Returns:** a JSON-ready dict with ``model``, ``data``, ``source``, ``parameters``
     (``{name: {value, stderr, ci95, vary, expr}}``), ``loss``, ``loss_name``, ``converged``,
     ``message``, ``n_evaluations``, ``wall_time``, ``correlation``, ``aic``, ``bic``,
-    ``identifiability`` (sentences), ``equivalent_adm`` for network fits and ``grid_search``
+    ``time_unit``, ``identifiability`` (sentences), ``equivalent_adm`` (models with that
+    hook; units in its keys) and ``grid_search``
     when one was run.
     """
     base = result.to_dict()
@@ -368,6 +280,7 @@ def fit_record(
         "model": result.model.name,
         "data": result.name,
         "source": source,
+        "time_unit": result.time_unit,
         "parameters": parameters,
         "loss": base["loss"],
         "loss_name": result.loss_name,
@@ -383,9 +296,9 @@ def fit_record(
         "correlation": base["correlation"],
         "identifiability": identifiability_statements(result),
     }
-    moments = network_moments(result.model.name, result.values)
-    if moments is not None:
-        record["equivalent_adm"] = equivalent_dispersion(*moments, length_m=length_m)
+    equivalent = result.equivalent_adm(length_m)
+    if equivalent is not None:
+        record["equivalent_adm"] = equivalent
     if grid is not None:
         record["grid_search"] = grid.to_dict()
     return record
@@ -482,7 +395,7 @@ def plot_fit(path: str | Path, result: FitResult, grid: GridResult | None = None
         grid_curve = np.asarray(model(fine, {n: grid.values[n] for n in model.parameter_names}))
         top.plot(fine, grid_curve, "--", color="tab:orange",
                  label=f"grid search ({grid.loss_name} = {grid.loss:.3g})")
-    unit = getattr(result, "time_unit", None) or "s"
+    unit = result.time_unit
     top.set_ylabel(f"E(t) (1/{unit})")
     top.set_title(f"{result.name or 'curve'}: model {model.name}", fontsize=10)
     top.legend(fontsize=8)

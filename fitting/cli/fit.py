@@ -1,0 +1,559 @@
+"""The ``axialmix fit`` sub-command: fit residence-time curves from CSV files.
+
+    axialmix fit FILE_OR_FOLDER... --model adm|adm-fv|adm-open|tanks|four-compartment|NET.json
+                 [--fix NAME=VALUE] [--tie NAME=OTHER] [--loss sse|mae] [--grid] [--starts N]
+                 [--errors absolute|relative] [--length METRES] --out DIR
+
+Every input is read and validated, and every option checked, before anything is written:
+bad input prints one line ``axialmix fit: error: <file>:<row>: <problem>`` to stderr and
+exits with status 2, leaving no output. This covers everything that can be known before
+fitting: every file (read in full), every option, fixed values a model is undefined at
+(``--fix tau=0``), curves too small or large for float64, and whether ``--out`` can be
+created and written. Then each curve is fitted; its JSON record and PNG
+plot are written to ``DIR/<name>.json`` and ``DIR/<name>.png`` as soon as it is done
+(atomically), so Ctrl-C keeps finished curves. Several curves also give ``DIR/summary.json``
+and ``DIR/summary.csv``.
+
+One run at a time writes into a folder: a run holds the lock file ``DIR/.axialmix-fit.lock``
+(its process id) while it writes, and a second run on the same ``--out`` is refused with
+exit status 2 (a lock left by a process that no longer runs is taken over). So two runs
+cannot interleave their files.
+
+Ctrl-C: fitting runs in a worker thread; the main thread catches SIGINT at once, lets the
+worker finish the file it may be writing, writes the summary of the curves already finished,
+removes the lock and ends the process with status 130 via ``os._exit`` — compiled JAX work
+still running is abandoned rather than waited for (its teardown could crash the process).
+
+With ``--errors relative`` the measurement errors are taken as proportional to the curve
+(multiplicative noise, the usual case for concentration measurements): each curve is fitted,
+then refitted weighted by ``1 / model²`` until the weights are those of its own curve
+(``1 / |model|`` for the mean absolute error), see :func:`fitting.fit.fit`. Unweighted
+least squares treats the peak, the noisiest part, as precise as the tail, and its intervals
+are then too narrow.
+
+With ``--loss mae`` the least-squares multi-start fit is polished by a fit on the mean
+absolute error (which is not smooth enough for multi-start L-BFGS alone); the evaluations
+of both stages are reported.
+
+With ``--grid`` the source's exhaustive grid search runs on the same loss: rates (parameters
+named ``k_*``) over ``[0 : 0.125 : 2.5]`` (MODELS.md section 3), any other free parameter over
+21 log-spaced values from a quarter to four times its fitted value; a free rate not on that
+grid (``k_out``) is held at its fitted value, so the grid is the source's three-dimensional one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import signal
+import sys
+import threading
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from axialmix._exits import BAD_INPUT, INTERRUPTED, OK, error_line
+
+__all__ = ["add_parser", "run"]
+
+#: Rates searched on the source's grid by ``--grid``.
+SOURCE_GRID_STEP, SOURCE_GRID_MAX = 0.125, 2.5
+#: Free parameters held at their fitted value in the grid search (the source did not search
+#: the outflow rate).
+GRID_HELD = ("k_out",)
+#: Starts per compiled batch when ``--starts`` is large: progress is shown between batches.
+STARTS_PER_BATCH = 256
+#: The lock file that marks an output folder as being written.
+LOCK_NAME = ".axialmix-fit.lock"
+#: Seconds the main thread waits, after Ctrl-C, for a file being written to be finished.
+WRITE_GRACE = 1.0
+
+
+class InputError(Exception):
+    """Bad command-line input; the message is one line, without the program prefix."""
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Register the ``fit`` sub-command on an argparse sub-parser collection.
+
+    **Arguments:**
+
+    - `subparsers`: the object returned by ``ArgumentParser.add_subparsers()``.
+
+    **Returns:** the ``fit`` parser (its ``func`` default is :func:`run`).
+    """
+    parser = subparsers.add_parser(
+        "fit",
+        help="fit a residence-time model to RTD curves (CSV files or folders)",
+        description="Fit a residence-time model to measured RTD curves; report values, "
+        "standard errors, 95 %% intervals and what the data determine.",
+    )
+    parser.add_argument("inputs", nargs="+", metavar="FILE_OR_FOLDER",
+                        help="CSV files (time, concentration) or folders of them (*.csv, "
+                        "any case)")
+    parser.add_argument("--model", default="adm",
+                        help="adm, adm-fv, adm-open, tanks, four-compartment, or a network "
+                        "JSON file (default: adm)")
+    parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                        help="hold a parameter at a value (repeatable)")
+    parser.add_argument("--tie", action="append", default=[], metavar="NAME=OTHER",
+                        help="make a parameter equal to another, e.g. k_r=k_f (repeatable)")
+    parser.add_argument("--loss", choices=("sse", "mae"), default="sse",
+                        help="least squares (default) or the source's mean absolute error")
+    parser.add_argument("--grid", action="store_true",
+                        help="also run the source's exhaustive grid search and compare")
+    parser.add_argument("--starts", type=int, default=None, metavar="N",
+                        help="number of starts (default: the moment estimate for ADM and "
+                        "tanks models, 8 for compartment networks)")
+    parser.add_argument("--errors", choices=("absolute", "relative"), default="absolute",
+                        help="measurement errors of equal size (default) or proportional to "
+                        "the curve (refit weighted by 1/model^2)")
+    parser.add_argument("--length", type=float, default=None, metavar="METRES",
+                        help="blender length L (m) for the equivalent v and D_z (no default: "
+                        "without it only tau and Pe are reported)")
+    parser.add_argument("--out", required=True, metavar="DIR", help="folder for the results")
+    parser.set_defaults(func=run)
+    return parser
+
+
+#: Deprecated name of :func:`add_parser` (kept one release).
+add_fit_parser = add_parser
+
+
+def _model(name: str):
+    from fitting.models import MODELS, network_model
+
+    if name in MODELS:
+        return MODELS[name]
+    path = Path(name)
+    if path.suffix.lower() == ".json":
+        if not path.is_file():
+            raise InputError(f"{path}: network file not found")
+        try:
+            return network_model(path)
+        except (ValueError, KeyError, TypeError, OSError, AttributeError) as error:
+            raise InputError(f"{path}: {' '.join(str(error).split())}") from None
+    raise InputError(f"--model: unknown model {name!r}; choose one of {', '.join(MODELS)} "
+                     "or give a network JSON file")
+
+
+def _pairs(items: Sequence[str], option: str) -> list[tuple[str, str]]:
+    pairs = []
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip() or not value.strip():
+            raise InputError(f"{option}: expected NAME=VALUE, got {item!r}")
+        pairs.append((name.strip(), value.strip()))
+    return pairs
+
+
+def _parameter_settings(model, fixes: Sequence[str], ties: Sequence[str]) -> dict:
+    """Parameter settings for --fix and --tie, checked against the model."""
+    settings = {}
+    for name, text in _pairs(fixes, "--fix"):
+        if name not in model.parameter_names:
+            raise InputError(f"--fix: model {model.name!r} has no parameter {name!r} "
+                             f"(it has {', '.join(model.parameter_names)})")
+        try:
+            value = float(text)
+        except ValueError:
+            raise InputError(f"--fix {name}: {text!r} is not a number") from None
+        default = model.defaults[name]
+        if not math.isfinite(value) or value < 0 or value > 1e100:
+            raise InputError(f"--fix {name}: value must be a finite non-negative number of "
+                             f"sensible size, got {text}")
+        if value == 0 and default.min is not None and default.min >= 0:
+            raise InputError(f"--fix {name}: must be positive, got {text} (the model is "
+                             f"undefined or has no outflow at {name} = 0)")
+        settings[name] = default.replace(value=value, vary=False, expr=None)
+    for name, other in _pairs(ties, "--tie"):
+        for label in (name, other):
+            if label not in model.parameter_names:
+                raise InputError(f"--tie: model {model.name!r} has no parameter {label!r} "
+                                 f"(it has {', '.join(model.parameter_names)})")
+        if name == other or name in settings:
+            raise InputError(f"--tie {name}={other}: a parameter cannot be tied to itself or "
+                             "be both fixed and tied")
+        settings[name] = model.defaults[name].replace(expr=other)
+    free = [n for n in model.parameter_names if n not in settings]
+    if not free:
+        raise InputError("--fix/--tie: nothing left to fit: every parameter is fixed or tied")
+    return settings
+
+
+def _read_curves(files: Sequence[Path]) -> list:
+    from fitting.data import DataError, DataWarning, read_rtd_csv
+
+    curves = []
+    for path in files:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", DataWarning)
+            try:
+                curves.append(read_rtd_csv(path))
+            except DataError as error:
+                raise InputError(error.compact()) from None
+        for warning in caught:
+            if issubclass(warning.category, DataWarning):
+                text = str(warning.message)
+                print(f"axialmix fit: warning: {_compact(text)}", file=sys.stderr)
+    return curves
+
+
+def _compact(message: str) -> str:
+    """``'<file>, row <r>: <problem>'`` as ``'<file>:<r>: <problem>'`` (compiler style)."""
+    head, sep, rest = message.partition(": ")
+    where, comma, row = head.rpartition(", row ")
+    return f"{where}:{row}: {rest}" if comma and sep and row.isdigit() else message
+
+
+def _check_out(out: Path) -> None:
+    """Refuse an --out that cannot be created or written, creating nothing."""
+    if out.exists():
+        if not out.is_dir():
+            raise InputError(f"{out}: --out exists and is not a folder")
+        if not os.access(out, os.W_OK | os.X_OK):
+            raise InputError(f"{out}: --out is not writable")
+        return
+    parent = out.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(f"{out}: --out cannot be created ({parent} is not a folder)")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{out}: --out cannot be created ({parent} is not writable)")
+
+
+def _check_fixed_curves(model, settings, curves, files) -> None:
+    """Evaluate the model once at its start values on each curve: a non-finite model curve
+    (e.g. a fixed value outside the model's range) is refused before anything is written."""
+    import numpy as np
+
+    for curve, path in zip(curves, files, strict=True):
+        params = model.parameters(curve)
+        params.update(settings)
+        values = {n: params[n].value for n in model.parameter_names}
+        for name, setting in settings.items():
+            if setting.expr is not None:
+                values[name] = values[setting.expr]
+        predicted = np.asarray(model(curve.time, values))
+        if not np.all(np.isfinite(predicted)):
+            raise InputError(f"{path}: the model is not finite at the start values "
+                             f"({', '.join(f'{k}={v:.4g}' for k, v in values.items())}); check "
+                             "--fix values")
+
+
+class _Lock:
+    """The lock file of an output folder (see the module docstring)."""
+
+    def __init__(self, folder: Path):
+        self.path = folder / LOCK_NAME
+        self.held = False
+
+    def acquire(self) -> None:
+        for _ in range(2):
+            try:
+                handle = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                owner = self._owner()
+                if owner is not None and _alive(owner):
+                    raise InputError(f"{self.path.parent}: --out is being written by another "
+                                     f"axialmix fit (process {owner}); wait or choose another "
+                                     "folder") from None
+                self.path.unlink(missing_ok=True)  # left by a process that no longer runs
+                continue
+            with os.fdopen(handle, "w") as stream:
+                stream.write(f"{os.getpid()}\n")
+            self.held = True
+            return
+        raise InputError(f"{self.path.parent}: --out lock file cannot be taken")
+
+    def _owner(self) -> int | None:
+        try:
+            return int(self.path.read_text().strip())
+        except (OSError, ValueError):
+            return None
+
+    def release(self) -> None:
+        if self.held:
+            self.path.unlink(missing_ok=True)
+            self.held = False
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _grid_for(model, result):
+    """Grid axes, held values and ties for ``--grid`` (see the module docstring)."""
+    import numpy as np
+
+    from fitting.gridsearch import source_flux_grid
+
+    grids, fixed, tied = {}, {}, {}
+    for name in model.parameter_names:
+        setting = result.init_params[name]
+        value = float(result.values[name])
+        if setting.expr is not None:
+            tied[name] = setting.expr
+        elif not setting.vary or name in GRID_HELD:
+            fixed[name] = value
+        elif name.startswith("k_"):
+            grids[name] = source_flux_grid(SOURCE_GRID_STEP, SOURCE_GRID_MAX)
+        else:
+            grids[name] = value * np.logspace(math.log10(0.25), math.log10(4.0), 21)
+    return grids, fixed, tied
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``axialmix fit`` with parsed arguments; returns the exit status.
+
+    **Arguments:**
+
+    - `args`: the namespace from the ``fit`` parser (see :func:`add_parser`).
+
+    **Returns:** 0 on success, 2 for bad input (nothing written), 130 after Ctrl-C.
+    """
+    try:
+        from fitting.data import DataError, input_files
+
+        try:
+            files = input_files(args.inputs)
+        except DataError as error:
+            raise InputError(str(error)) from None
+        if args.starts is not None and args.starts < 1:
+            raise InputError(f"--starts: must be at least 1, got {args.starts}")
+        if args.starts is not None and args.starts > 1_000_000:
+            raise InputError(f"--starts: at most 1,000,000, got {args.starts}")
+        if args.grid and args.errors == "relative":
+            raise InputError("--grid scores the unweighted loss, as the source did; use it "
+                             "without --errors relative")
+        if args.length is not None and not (math.isfinite(args.length) and args.length > 0):
+            raise InputError(f"--length: must be a positive number of metres, got {args.length}")
+        out = Path(args.out)
+        _check_out(out)
+        model = _model(args.model)
+        settings = _parameter_settings(model, args.fix, args.tie)
+        curves = _read_curves(files)
+        _check_fixed_curves(model, settings, curves, files)
+    except InputError as error:
+        return error_line("fit", str(error))
+    except KeyboardInterrupt:
+        print("axialmix fit: interrupted before fitting; nothing written", file=sys.stderr)
+        return INTERRUPTED
+    starts = args.starts or model.default_starts
+    return _Run(model, curves, files, settings, args, starts, out).execute()
+
+
+class _Run:
+    """One ``axialmix fit`` run after validation: fits in a worker thread, Ctrl-C in the main."""
+
+    def __init__(self, model, curves, files, settings, args, starts, out: Path):
+        self.model, self.curves, self.files, self.settings = model, curves, files, settings
+        self.args, self.starts, self.out = args, starts, out
+        self.records: list[dict[str, Any]] = []
+        self.stop = threading.Event()
+        self.writing = threading.Lock()
+        self.failure: BaseException | None = None
+        self.status = OK
+        self.lock = _Lock(out)
+
+    def execute(self) -> int:
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            self.lock.acquire()
+        except InputError as error:
+            return error_line("fit", str(error))
+        except OSError as error:
+            return error_line("fit", f"{self.out}: --out cannot be created ({error.strerror})")
+        in_main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, self._interrupt) if in_main else None
+        worker = threading.Thread(target=self._work, name="axialmix-fit", daemon=True)
+        try:
+            worker.start()
+            while worker.is_alive():
+                worker.join(0.1)
+                if self.stop.is_set():
+                    self._leave()
+        finally:
+            if in_main:
+                signal.signal(signal.SIGINT, previous)
+            self.lock.release()
+        if self.failure is not None:
+            raise self.failure
+        return self.status
+
+    def _interrupt(self, signum, frame) -> None:
+        self.stop.set()
+
+    def _leave(self) -> None:
+        """After Ctrl-C: finish the file being written, write the summary, exit 130 now."""
+        if self.writing.acquire(timeout=WRITE_GRACE):
+            try:
+                self._write_summary(interrupted=True)
+            finally:
+                self.lock.release()
+                print(f"axialmix fit: interrupted after {len(self.records)} of "
+                      f"{len(self.curves)} curves; finished results are in {self.out}",
+                      file=sys.stderr, flush=True)
+                sys.stdout.flush()
+                os._exit(INTERRUPTED)
+        self.lock.release()
+        os._exit(INTERRUPTED)
+
+    def _work(self) -> None:
+        try:
+            self.status = self._fit_all()
+        except BaseException as error:  # shown by the main thread
+            self.failure = error
+
+    def _fit_all(self) -> int:
+        from axialmix._progress import progress_bar
+        from fitting.gridsearch import grid_search
+        from fitting.report import fit_record, fit_table, plot_fit, write_json
+        from fitting.solve import enable_compilation_cache
+
+        enable_compilation_cache()
+        args, out = self.args, self.out
+        bar = progress_bar(total=len(self.curves), description="fit", unit="curve",
+                           enabled=None if len(self.curves) > 1 else False)
+        try:
+            for index, (curve, path) in enumerate(zip(self.curves, self.files, strict=True)):
+                bar.set_postfix_str(curve.name, refresh=True)
+                if len(self.curves) > 1 and bar.disable:
+                    # No terminal for the bar: one log line per curve instead.
+                    print(f"axialmix fit: [{index + 1}/{len(self.curves)}] {curve.name}",
+                          file=sys.stderr, flush=True)
+                try:
+                    result = _fit_one(self.model, curve, self.settings, args.loss, self.starts,
+                                      args.errors == "relative", self.stop)
+                except ValueError as error:
+                    with self.writing:
+                        self.status = error_line("fit", f"{path}: {error}")
+                    return BAD_INPUT
+                if self.stop.is_set():
+                    return INTERRUPTED
+                grid = None
+                if args.grid:
+                    grids, held, tied = _grid_for(self.model, result)
+                    grid = grid_search(self.model, curve, grids, loss=args.loss, fixed=held,
+                                       tied=tied, progress=True, stop=self.stop.is_set)
+                record = fit_record(result, grid, source=str(path), length_m=args.length)
+                with self.writing:
+                    if self.stop.is_set():
+                        return INTERRUPTED
+                    write_json(out / f"{curve.name}.json", record)
+                    plot_fit(out / f"{curve.name}.png", result, grid)
+                    self.records.append(record)
+                if len(self.curves) == 1:
+                    _print_single(result, grid, record, fit_table)
+                bar.update(1)
+                if grid is not None and grid.interrupted:
+                    self.stop.set()
+                    return INTERRUPTED
+        finally:
+            bar.close()
+        with self.writing:
+            self._write_summary(interrupted=False)
+        print(f"results written to {out}")
+        return OK
+
+    def _write_summary(self, interrupted: bool) -> None:
+        from fitting.report import summary_rows, summary_table, write_csv, write_json
+
+        records = list(self.records)
+        if len(self.curves) <= 1 or not records:
+            return
+        print(summary_table(records), flush=True)
+        write_json(self.out / "summary.json", {"model": self.model.name,
+                                               "loss_name": self.args.loss,
+                                               "complete": not interrupted, "fits": records})
+        header, rows = summary_rows(records)
+        write_csv(self.out / "summary.csv", header, rows)
+
+
+def _fit_one(model, curve, settings: dict, loss: str, starts: int | None,
+             relative: bool = False, stop: threading.Event | None = None):
+    """Fit one curve; the mean absolute error is polished from the least-squares optimum.
+
+    The MAE is not smooth, so multi-start L-BFGS on it stalls at kinks; the least-squares
+    multi-start finds the basin and a single MAE fit from there finishes. The evaluations
+    and times of both stages are reported together. With `relative` the least-squares fit
+    is the relative-error fit and the MAE polish is weighted by ``1 / |model|``. Many starts
+    run in batches of :data:`STARTS_PER_BATCH`, with progress between them.
+    """
+    import numpy as np
+
+    from axialmix._progress import progress_bar
+    from fitting.fit import fit
+    from fitting.result import RelativeErrors
+    from fitting.solve import MultiStart
+
+    errors = RelativeErrors() if relative else None
+    if starts is not None and starts > STARTS_PER_BATCH:
+        first, done = None, 0
+        bar = progress_bar(total=starts, description=f"starts ({curve.name})", unit="start")
+        try:
+            while done < starts and not (stop is not None and stop.is_set()):
+                count = min(STARTS_PER_BATCH, starts - done)
+                batch = fit(model, curve, settings, loss="sse", relative_errors=errors,
+                            multistart=MultiStart(n_starts=max(count, 2), seed=done))
+                if first is None or batch.loss < first.loss:
+                    evaluations = batch.n_evaluations + (first.n_evaluations if first else 0)
+                    wall = batch.wall_time + (first.wall_time if first else 0.0)
+                    first = dataclasses.replace(batch, n_evaluations=evaluations,
+                                                wall_time=wall, n_starts=done + count)
+                else:
+                    first = dataclasses.replace(
+                        first, n_evaluations=first.n_evaluations + batch.n_evaluations,
+                        wall_time=first.wall_time + batch.wall_time, n_starts=done + count)
+                done += count
+                bar.update(count)
+        finally:
+            bar.close()
+    else:
+        first = fit(model, curve, settings, loss="sse", relative_errors=errors,
+                    multistart=MultiStart(n_starts=starts))
+    if loss == "sse" or (stop is not None and stop.is_set()):
+        return first
+    weights = np.sqrt(first.weights) if relative else None
+    second = fit(model, curve, first.restart_parameters(), loss=loss, weights=weights,
+                 multistart=MultiStart(n_starts=1))
+    return dataclasses.replace(
+        second,
+        n_evaluations=first.n_evaluations + second.n_evaluations,
+        wall_time=first.wall_time + second.wall_time,
+        n_starts=first.n_starts,
+    )
+
+
+def _print_single(result, grid, record, fit_table) -> None:
+    print(fit_table(result, grid))
+    for sentence in record["identifiability"]:
+        print(f"  * {sentence}")
+    equivalent = record.get("equivalent_adm")
+    if equivalent is not None and "variance_ratio" in equivalent:
+        unit = result.time_unit
+        length = equivalent["length_m"]
+        transport = ("" if length is None else
+                     f", v = {_show(equivalent['velocity_m_per_s'])} m/s, D_z = "
+                     f"{_show(equivalent['dispersion_m2_per_s'])} m^2/s (L = {length:g} m)")
+        print("  equivalent closed-closed ADM (same mean and variance): tau = "
+              f"{_show(equivalent[f'tau_{unit}'])} {unit}, Pe = {_show(equivalent['peclet'])}"
+              f"{transport}")
+    elif equivalent is not None and equivalent["length_m"] is not None:
+        print(f"  transport (L = {equivalent['length_m']:g} m): v = "
+              f"{_show(equivalent['velocity_m_per_s'])} m/s, D_z = "
+              f"{_show(equivalent['dispersion_m2_per_s'])} m^2/s")
+
+
+def _show(value: float | None) -> str:
+    return "-" if value is None else f"{value:.4g}"

@@ -1,0 +1,353 @@
+"""Diagnostics of fits: which parameter combinations a curve determines, and profiles.
+
+:func:`identifiability` analyses the curvature of a fit; :func:`profile_likelihood` re-fits
+with one parameter held on a grid (one vmapped, compiled call through :mod:`fitting.solve`),
+checking the linearised intervals of :mod:`fitting.uncertainty`.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from axialmix.network import four_compartment_chain_transport
+from fitting.fit import prepare
+from fitting.result import FitResult
+from fitting.solve import (
+    FIRST_ORDER_CONVERGED,
+    MultiStart,
+    Optimiser,
+    compiled_solver,
+    make_plan,
+    run_solver,
+)
+from fitting.uncertainty import LOG_INTERVAL_LIMIT, SINGULAR_RATIO, t_quantile
+
+__all__ = [
+    "MAX_LOG_HALF_WIDTH",
+    "Identifiability",
+    "Profile",
+    "equivalent_dispersion",
+    "identifiability",
+    "profile_likelihood",
+]
+
+# --- identifiability ---------------------------------------------------------------------------
+
+#: A parameter combination whose 95 % half-width exceeds this (in natural-log units, i.e. the
+#: combination is not known within a factor of two) counts as poorly determined.
+MAX_LOG_HALF_WIDTH = math.log(2.0)
+
+
+def _combination_words(direction: np.ndarray, names: Sequence[str], log_scale: np.ndarray) -> str:
+    """A parameter combination in words, e.g. ``'ln k_f - 0.98 ln k_r (the ratio k_f/k_r)'``."""
+    order = np.argsort(-np.abs(direction))
+    direction = direction / direction[order[0]]
+    terms = []
+    for i in order:
+        if abs(direction[i]) < 0.15:
+            continue
+        symbol = f"ln {names[i]}" if log_scale[i] else f"{names[i]}/|{names[i]}|"
+        coefficient = direction[i]
+        text = symbol if abs(abs(coefficient) - 1) < 0.005 else f"{abs(coefficient):.2f} {symbol}"
+        sign = "-" if coefficient < 0 else "+"
+        terms.append(text if not terms else f"{sign} {text}")
+    words = " ".join(terms)
+    big = [i for i in order if abs(direction[i]) >= 0.15]
+    if len(big) == 1:
+        return f"{names[big[0]]} alone"
+    if len(big) == 2 and all(log_scale[i] for i in big):
+        a, b = names[big[0]], names[big[1]]
+        if direction[big[1]] < 0:
+            return f"{words} (the ratio {a}/{b})"
+        return f"{words} (the product {a}·{b})"
+    return words
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """Which parameter combinations an RTD determines: eigen-analysis of the curvature.
+
+    The Gauss–Newton curvature ``Jᵀ W J / s²`` is expressed in relative changes of the free
+    parameters (``d ln p``; for parameters that may be zero or negative, changes relative to
+    ``|p|``), so eigenvalues of different parameters are comparable.
+
+    - `names`: free parameter names.
+    - `eigenvalues`: descending; `directions`: the matching unit eigenvectors (columns).
+    - `ratios`: eigenvalue / largest eigenvalue.
+    - `half_widths`: 95 % half-width of each combination (Student t, log units; ``inf`` for
+      a zero eigenvalue).
+    - `poorly_determined`: indices of combinations with a half-width above ln 2 or a ratio
+      below :data:`SINGULAR_RATIO` (numerically not determined at all).
+    - `summary`: the diagnosis in plain words with numbers.
+    """
+
+    names: tuple[str, ...]
+    eigenvalues: np.ndarray
+    directions: np.ndarray
+    ratios: np.ndarray
+    half_widths: np.ndarray
+    poorly_determined: tuple[int, ...]
+    summary: str
+
+    def __str__(self) -> str:
+        return self.summary
+
+
+def identifiability(result: FitResult) -> Identifiability:
+    """Diagnose poorly determined parameter combinations of a fit from its curvature.
+
+    **Arguments:**
+
+    - `result`: a :class:`~fitting.result.FitResult` (least squares).
+
+    **Returns:**
+
+    An :class:`Identifiability`; ``str()`` of it reads like "the data fix ln k_f + ln k_r
+    (±3 %) but not ln k_f - ln k_r (the ratio k_f/k_r): eigenvalue ratio 2e-07, direction
+    (k_f 0.71, k_r -0.70, k_s 0.05), 95 % half-width ±4.1 (factor 60)".
+    """
+    names = result.free_names
+    values = np.array([result.values[n] for n in names])
+    log_scale = np.array([result.init_params[n].min is not None and result.init_params[n].min
+                          >= 0 and v > 0 for n, v in zip(names, values, strict=True)])
+    scale = np.where(values != 0, np.abs(values), 1.0)
+    jacobian = result.jacobian * scale[None, :]
+    weights = result.weights
+    variance = result.sigma**2 if np.isfinite(result.sigma) and result.sigma > 0 else math.nan
+    curvature = jacobian.T @ (weights[:, None] * jacobian)
+    eigenvalues, directions = np.linalg.eigh(curvature)
+    eigenvalues, directions = eigenvalues[::-1], directions[:, ::-1]
+    largest = max(eigenvalues[0], 1e-300)
+    ratios = eigenvalues / largest
+    quantile = t_quantile(result.dof)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        half_widths = np.where(eigenvalues > 0,
+                               quantile * np.sqrt(variance / np.maximum(eigenvalues, 1e-300)),
+                               np.inf)
+    poorly = tuple(int(i) for i in range(len(names))
+                   if ratios[i] < SINGULAR_RATIO or half_widths[i] > MAX_LOG_HALF_WIDTH)
+
+    def describe(i: int) -> str:
+        components = ", ".join(f"{n} {c:+.2f}" for n, c in zip(names, directions[:, i],
+                                                                   strict=True))
+        width = half_widths[i]
+        if not np.isfinite(width):
+            width_text = "no bound at all"
+        elif width > LOG_INTERVAL_LIMIT:
+            width_text = f"95 % half-width ±{width:.3g} in the logarithm (no bound in practice)"
+        else:
+            width_text = f"95 % half-width ±{width:.3g} (factor {math.exp(width):.3g})"
+        return (f"{_combination_words(directions[:, i], names, log_scale)}: eigenvalue ratio "
+                f"{ratios[i]:.2g}, direction ({components}), {width_text}")
+
+    if len(names) == 1:
+        summary = f"one free parameter: {describe(0)}"
+    elif not poorly:
+        summary = (f"all {len(names)} parameter combinations are determined; the weakest is "
+                   f"{describe(len(names) - 1)}")
+    else:
+        good = [i for i in range(len(names)) if i not in poorly]
+        fixed = "; ".join(
+            f"{_combination_words(directions[:, i], names, log_scale)} (±{half_widths[i]:.2g})"
+            for i in good
+        ) or "no combination well"
+        lacking = "; ".join(describe(i) for i in poorly)
+        summary = f"the data fix {fixed} but not {lacking}"
+    return Identifiability(tuple(names), eigenvalues, directions, ratios, half_widths, poorly,
+                           summary)
+
+
+# --- profile likelihood ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Profile:
+    """Profile of the least-squares loss along one parameter, the others re-fitted.
+
+    - `name`: the profiled parameter; `values`: the grid of fixed values.
+    - `sse`: minimum ``Σ w r²`` over the other parameters at each value.
+    - `converged`: whether each re-fit converged.
+    - `threshold`: ``SSE_min (1 + t² / (n - p))``, the F-test level matching the Wald 95 %
+      interval (the two agree exactly for a model linear in its parameters).
+    - `ci95`: ``(low, high)`` where the profile first crosses the threshold on either side of
+      the fitted value (linear interpolation); ``None`` on a side where it does not cross
+      inside the grid (the interval is open there: the data do not bound the parameter).
+    - `regions`: every stretch of the grid where the profile lies below the threshold, as
+      ``(low, high)`` pairs in the same form; more than one means the data allow separate
+      ranges (a second minimum, such as the four-compartment model's mirror solution), and
+      the 95 % confidence set is their union, not `ci95` alone.
+    """
+
+    name: str
+    values: np.ndarray
+    sse: np.ndarray
+    converged: np.ndarray
+    threshold: float
+    ci95: tuple[float | None, float | None]
+    regions: tuple[tuple[float | None, float | None], ...] = ()
+
+    def __str__(self) -> str:
+        low, high = self.ci95
+        text = [f"profile of {self.name}: 95 % interval "
+                f"[{'open' if low is None else f'{low:.6g}'}, "
+                f"{'open' if high is None else f'{high:.6g}'}]"]
+        if len(self.regions) > 1:
+            parts = ", ".join(f"[{'open' if a is None else f'{a:.6g}'}, "
+                              f"{'open' if b is None else f'{b:.6g}'}]" for a, b in self.regions)
+            text[0] += f"; below the threshold in {len(self.regions)} separate ranges: {parts}"
+        for value, sse, ok in zip(self.values, self.sse, self.converged, strict=True):
+            mark = "" if ok else "  (re-fit not converged)"
+            text.append(f"    {value:<14.6g} SSE {sse:.6g}{mark}")
+        return "\n".join(text)
+
+
+def profile_likelihood(
+    result: FitResult,
+    name: str,
+    values: Sequence[float] | np.ndarray | None = None,
+    *,
+    n_points: int = 21,
+    span: float = 4.0,
+) -> Profile:
+    """Profile the loss along one parameter: fix it on a grid and re-fit the others (vmapped).
+
+    **Arguments:**
+
+    - `result`: a least-squares :class:`~fitting.result.FitResult`.
+    - `name`: a free parameter of the fit.
+    - `values`: the grid of fixed values; by default `n_points` values spanning ``± span``
+      standard errors around the fitted value (geometric, within a factor ``e^{±span·rse}``,
+      for positive parameters; a factor 4 each way when the standard error is undefined),
+      kept inside the parameter's bounds.
+    - `n_points`, `span`: the default grid.
+
+    **Returns:**
+
+    A :class:`Profile`.
+    """
+    if name not in result.free_names:
+        raise ValueError(f"{name!r} is not a free parameter of this fit "
+                         f"(free: {', '.join(result.free_names)})")
+    setting = result.init_params[name]
+    best = result.values[name]
+    if values is None:
+        error = result.stderr[name]
+        positive = setting.min is not None and setting.min >= 0 and best > 0
+        if positive:
+            relative = error / best if error is not None and np.isfinite(error) else math.log(4)
+            values = best * np.exp(np.linspace(-span, span, n_points) * min(relative, 1.0))
+        else:
+            width = error if error is not None and np.isfinite(error) else max(abs(best), 1.0)
+            values = best + np.linspace(-span, span, n_points) * width
+        low = setting.min if setting.min is not None else -np.inf
+        high = setting.max if setting.max is not None else np.inf
+        values = values[(values > low) & (values < high)]
+    values = np.asarray(values, dtype=float)
+    params = result.params.copy()
+    params[name] = params[name].replace(vary=False)
+    plan = make_plan(result.loss_name, Optimiser(), MultiStart(n_starts=1))
+    curve = result.curve
+    prepared = prepare(result.model, curve, params, result.weights, 1, 0)
+    layout = prepared.layout
+    index = layout.names.index(name)
+    bases = np.tile(prepared.base, (len(values), 1))
+    bases[:, index] = values
+    starts = np.tile(prepared.starts, (len(values), 1, 1))
+    solver = compiled_solver(prepared.model, layout, plan, "bases")
+    out, _, _ = run_solver(solver, starts, prepared.warm, bases, curve.time, curve.value,
+                            result.weights)
+    predicted = np.asarray(out["predicted"])
+    sse = np.sum(result.weights * (predicted - curve.value) ** 2, axis=1)
+    converged = np.isin(np.asarray(out["status"]), [int(s) for s in FIRST_ORDER_CONVERGED])
+    dof = result.dof
+    quantile = t_quantile(dof)
+    minimum = min(result.sse, float(np.min(sse)))
+    threshold = minimum * (1 + quantile**2 / dof) if dof > 0 else math.nan
+    return Profile(name, values, sse, converged, threshold,
+                   crossings(values, sse, threshold, best), regions(values, sse, threshold))
+
+
+def crossings(values: np.ndarray, sse: np.ndarray, threshold: float,
+               best: float) -> tuple[float | None, float | None]:
+    """Where a profile crosses `threshold` below and above `best` (linear interpolation)."""
+    below = values < best
+    above = values > best
+
+    def crossing(xs: np.ndarray, ys: np.ndarray) -> float | None:
+        # xs ordered from the optimum outwards
+        for k in range(len(xs)):
+            if ys[k] >= threshold:
+                if k == 0:
+                    return float(xs[0])
+                x0, x1, y0, y1 = xs[k - 1], xs[k], ys[k - 1], ys[k]
+                return float(x0 + (threshold - y0) * (x1 - x0) / (y1 - y0))
+        return None
+
+    low = crossing(values[below][::-1], sse[below][::-1])
+    high = crossing(values[above], sse[above])
+    return low, high
+
+
+def regions(values: np.ndarray, sse: np.ndarray,
+             threshold: float) -> tuple[tuple[float | None, float | None], ...]:
+    """Maximal stretches of a profile below `threshold`, ends linearly interpolated (``None``
+    where a stretch runs off the grid)."""
+    order = np.argsort(values)
+    xs, ys = values[order], sse[order]
+    inside = ys < threshold
+
+    def cross(k: int) -> float:
+        x0, x1, y0, y1 = xs[k], xs[k + 1], ys[k], ys[k + 1]
+        return float(x0 + (threshold - y0) * (x1 - x0) / (y1 - y0))
+
+    regions = []
+    k = 0
+    while k < len(xs):
+        if not inside[k]:
+            k += 1
+            continue
+        start = k
+        while k + 1 < len(xs) and inside[k + 1]:
+            k += 1
+        low = None if start == 0 else cross(start - 1)
+        high = None if k == len(xs) - 1 else cross(k)
+        regions.append((low, high))
+        k += 1
+    return tuple(regions)
+
+
+def equivalent_dispersion(result: FitResult, length: float = 1.0) -> dict:
+    """Deprecated: the axial dispersion model equivalent to a fitted four-compartment network.
+
+    Use ``result.equivalent_adm(length)`` (the model's hook, computed by
+    :func:`axialmix.network.moment_matched_adm`) and
+    :func:`axialmix.network.four_compartment_chain_transport`. Kept one release.
+
+    **Arguments:** `result`: a four-compartment fit; `length`: blender length ``L`` (m).
+
+    **Returns:** ``{"moments": {tau, variance, peclet, velocity, axial_dispersion},
+    "chain": {velocity, axial_dispersion, peclet}}`` (the curve's time unit; SI for v, D_z).
+    """
+    warnings.warn("equivalent_dispersion is deprecated; use FitResult.equivalent_adm(length) "
+                  "and axialmix.network.four_compartment_chain_transport",
+                  DeprecationWarning, stacklevel=2)
+    if set(result.model.parameter_names) != {"k_f", "k_r", "k_s", "k_out"}:
+        raise ValueError("equivalent_dispersion needs a four-compartment fit")
+    record = result.equivalent_adm(length)
+    unit = result.curve.time_unit
+    v = result.values
+    velocity, dispersion, peclet = four_compartment_chain_transport(v["k_f"], v["k_r"], length)
+    return {
+        "moments": {"tau": record[f"tau_{unit}"], "variance": record[f"variance_{unit}2"],
+                    "peclet": record["peclet"], "velocity": record["velocity_m_per_s"],
+                    "axial_dispersion": record["dispersion_m2_per_s"]},
+        "chain": {"velocity": velocity, "axial_dispersion": dispersion, "peclet": peclet},
+    }
+
+
+_crossings, _regions = crossings, regions  # the names of earlier releases

@@ -1,0 +1,515 @@
+"""Fitting residence-time models to curves: :func:`fit`, :func:`fit_many`, relative errors.
+
+A fit merges the model's defaults with the user's parameter settings
+(:mod:`fitting.parameters`), checks the data (:mod:`fitting.data`), draws the starts and runs
+one compiled multi-start solver (:mod:`fitting.solve`), then computes the uncertainty
+(:mod:`fitting.uncertainty`) into an immutable :class:`~fitting.result.FitResult`.
+
+Settings are small immutable modules: :class:`~fitting.solve.Optimiser`,
+:class:`~fitting.solve.MultiStart` and :class:`~fitting.result.RelativeErrors`. The keyword
+arguments of earlier releases (``method``, ``n_starts``, ``seed``, ``max_steps``, ``tol``,
+``ftol``, ``xtol``, ``warmup_steps``, ``learning_rate``, ``relative_errors``) still work for
+one release, mapped onto these by :func:`settings_from_keywords` with a DeprecationWarning.
+
+* Starts: by default a fit runs from the start values and, when those differ from the
+  model's method-of-moments estimate, from that estimate too (a start whose model curve
+  misses the data sits on a flat loss no local method can leave; the moment estimate always
+  overlaps the data). ``n_starts=1`` runs the start values alone. (The command line uses
+  ``Model.default_starts`` where a model gives one.)
+* Relative errors: after a first fit, the curve is fitted again from its result with
+  weights ``1 / max(|model|, floor)²`` until the fitted values stop changing (iteratively
+  reweighted least squares); degrees of freedom then count floored points right
+  (:func:`fitting.uncertainty.effective_degrees_of_freedom`).
+* ``n_evaluations`` counts objective evaluations, each one value and gradient (one model
+  evaluation plus its reverse pass), summed over all starts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from fitting.data import Curve, as_curve
+from fitting.losses import LOSSES
+from fitting.models import Model, get_model
+from fitting.parameters import Layout, Parameter, Parameters, clip_into_bounds, make_layout
+from fitting.result import FitResult, FitSettings, RelativeErrors
+from fitting.solve import (
+    CONVERGED,
+    SECOND_ORDER_DISTANCE,
+    STATUS_MESSAGES,
+    MultiStart,
+    Optimiser,
+    SolverPlan,
+    Status,
+    compiled_solver,
+    make_plan,
+    run_solver,
+    second_order_distance,
+    start_points,
+)
+from fitting.uncertainty import (
+    effective_degrees_of_freedom,
+    gauss_newton_uncertainty,
+    information_criteria,
+    interval,
+    t_quantile,
+)
+
+__all__ = ["fit", "fit_many", "prepare", "settings_from_keywords"]
+
+#: The keyword arguments of earlier releases and the setting each one maps onto.
+LEGACY_KEYWORDS = {
+    "method": ("optimiser", "method"), "max_steps": ("optimiser", "max_steps"),
+    "tol": ("optimiser", "tol"), "ftol": ("optimiser", "ftol"), "xtol": ("optimiser", "xtol"),
+    "learning_rate": ("optimiser", "learning_rate"),
+    "n_starts": ("multistart", "n_starts"), "seed": ("multistart", "seed"),
+    "warmup_steps": ("multistart", "warmup_steps"),
+    "relative_errors": ("relative_errors", None),
+}
+
+
+def settings_from_keywords(loss: str = "sse", optimiser: Optimiser | None = None,
+                           multistart: MultiStart | None = None,
+                           relative_errors: RelativeErrors | bool | None = None,
+                           warn: bool = True, **legacy: Any) -> FitSettings:
+    """The one mapping from the keyword arguments of earlier releases onto :class:`FitSettings`.
+
+    **Arguments:**
+
+    - `loss`, `optimiser`, `multistart`, `relative_errors`: the settings (``True`` for
+      :class:`RelativeErrors` with its defaults, ``False``/``None`` for none).
+    - `warn`: warn (DeprecationWarning) when old keywords are used.
+    - `legacy`: old keywords (see :data:`LEGACY_KEYWORDS`); each overrides its setting.
+
+    **Returns:** the :class:`FitSettings`.
+    """
+    unknown = sorted(set(legacy) - set(LEGACY_KEYWORDS))
+    if unknown:
+        raise TypeError(f"unexpected keyword argument(s) {', '.join(unknown)}")
+    optimiser = optimiser if optimiser is not None else Optimiser()
+    multistart = multistart if multistart is not None else MultiStart()
+    if legacy and warn:
+        warnings.warn(f"the keyword(s) {', '.join(sorted(legacy))} are deprecated; pass "
+                      "optimiser=Optimiser(...), multistart=MultiStart(...) or "
+                      "relative_errors=RelativeErrors(...)", DeprecationWarning, stacklevel=3)
+    changes: dict[str, dict[str, Any]] = {"optimiser": {}, "multistart": {}}
+    for key, value in legacy.items():
+        group, name = LEGACY_KEYWORDS[key]
+        if group == "relative_errors":
+            relative_errors = value
+        else:
+            changes[group][name] = value
+    if changes["optimiser"]:
+        optimiser = Optimiser(**{**_fields(optimiser), **changes["optimiser"]})
+    if changes["multistart"]:
+        multistart = MultiStart(**{**_fields(multistart), **changes["multistart"]})
+    if relative_errors is True:
+        relative_errors = RelativeErrors()
+    elif relative_errors is False:
+        relative_errors = None
+    return FitSettings(loss=loss, optimiser=optimiser, multistart=multistart,
+                       relative_errors=relative_errors)
+
+
+def _fields(module) -> dict[str, Any]:
+    return {f.name: getattr(module, f.name) for f in dataclasses.fields(module)}
+
+
+def merge_parameters(model: Model, params, curve: Curve | None) -> Parameters:
+    """Model defaults (moment estimates as start values when a curve is given), then the user's.
+
+    A number replaces only the start value; a :class:`Parameter` replaces the whole setting.
+    """
+    merged = model.parameters(curve)
+    if params is None:
+        return merged
+    for name, setting in params.items():
+        if isinstance(setting, Parameter):
+            merged[name] = setting
+        elif name in merged:
+            merged[name] = merged[name].replace(value=float(setting))
+        else:
+            merged[name] = Parameter(float(setting))
+    return merged
+
+
+def check_data(curve: Curve, weights: np.ndarray) -> None:
+    label = f"curve {curve.name!r}: " if curve.name else ""
+    if len(curve) < 2:
+        raise ValueError(f"{label}need at least two data points")
+    if not (np.all(np.isfinite(curve.time)) and np.all(np.isfinite(curve.value))):
+        raise ValueError(f"{label}time and values must be finite (no NaN or inf)")
+    if not np.all(np.diff(curve.time) > 0):
+        raise ValueError(f"{label}times must be strictly increasing")
+    if weights.shape != curve.time.shape:
+        raise ValueError(f"{label}weights have shape {weights.shape}, data {curve.time.shape}")
+    if not np.all(np.isfinite(weights)) or np.any(weights < 0):
+        raise ValueError(f"{label}weights must be finite and non-negative")
+
+
+@dataclass(frozen=True, eq=False)
+class Prepared:
+    """One curve made ready for the solver: merged settings, layout, weights, starts."""
+
+    model: Model
+    curve: Curve
+    params: Parameters
+    layout: Layout
+    weights: np.ndarray
+    base: np.ndarray
+    starts: np.ndarray
+    warm: np.ndarray
+
+
+def _without_idle_warmup(options: SolverPlan, prepared: Sequence[Prepared]) -> SolverPlan:
+    """Drop the Adam warm-up from the compiled solver when no start is random."""
+    if options.warmup_steps > 0 and not any(p.warm.any() for p in prepared):
+        return dataclasses.replace(options, warmup_steps=0)
+    return options
+
+
+def prepare(model, curve: Curve, params, weights, n_starts: int | None,
+             seed: int) -> Prepared:
+    """One curve made ready for the solver (see :class:`Prepared`).
+
+    **Arguments:** the model (or its name), the curve, parameter settings, weights (or
+    ``None``), the number of starts (``None``: the model's default) and the seed.
+
+    **Returns:** a :class:`Prepared`; a one-line ``ValueError`` for bad data or settings.
+    """
+    model = get_model(model)
+    merged = merge_parameters(model, params, curve)
+    layout = make_layout(model.name, model.parameter_names, merged)
+    weights = np.ones(len(curve)) if weights is None else np.asarray(weights, dtype=float)
+    check_data(curve, weights)
+    n_used = int(np.count_nonzero(weights))
+    if n_used <= len(layout.free):
+        raise ValueError(
+            f"{n_used} weighted data points cannot determine {len(layout.free)} free parameters"
+        )
+    base = np.array([merged[n].value for n in layout.names])
+    start = base[list(layout.free_index)]
+    anchor = None
+    if model.initial_guess is not None and (n_starts is None or n_starts > 1):
+        guess = model.parameters(curve)
+        anchor = np.array([clip_into_bounds(guess[n].value, merged[n]) if n in guess
+                           else merged[n].value for n in layout.free])
+    if n_starts is None:
+        # The start values, and the moment estimate when it differs from them.
+        same = anchor is None or np.allclose(anchor, start, rtol=1e-9, atol=0.0)
+        n_starts = 1 if same else 2
+    starts, warm = start_points(layout, start, anchor, n_starts, seed)
+    return Prepared(model, curve, merged, layout, weights, base, starts, warm)
+
+
+def _result(prepared: Prepared, layout: Layout, options: SolverPlan, out: dict,
+            wall_time: float, compile_time: float, settings: FitSettings) -> FitResult:
+    curve, merged, weights = prepared.curve, prepared.params, prepared.weights
+    # Distinct starts (fit_many pads a batch of curves to a common number of starts).
+    n_starts = len(np.unique(prepared.starts, axis=0))
+    out = {k: np.asarray(v) for k, v in out.items()}
+    residual = out["predicted"] - curve.value
+    n_points = int(np.count_nonzero(weights))
+    sse = float(np.sum(weights * residual**2))
+    loss = float(LOSSES[options.loss](residual, weights))
+    uncertainty = gauss_newton_uncertainty(out["jacobian"], residual, weights,
+                                           out["all_from_free"])
+    values = dict(zip(layout.names, out["all_values"].tolist(), strict=True))
+    stderr: dict[str, float | None] = {}
+    ci95: dict[str, tuple[float, float] | None] = {}
+    for i, name in enumerate(layout.names):
+        setting = merged[name]
+        if setting.expr is None and not setting.vary:
+            stderr[name], ci95[name] = None, None
+            continue
+        error = float(uncertainty.all_stderr[i])
+        stderr[name] = error
+        ci95[name] = interval(values[name], uncertainty.t_quantile * error, setting)
+    status = Status(int(out["status"]))
+    message = STATUS_MESSAGES[status]
+    if status == Status.FLAT and options.loss == "sse" and uncertainty.dof > 0 and sse > 0:
+        distance, on_bound = second_order_distance(
+            prepared.model, layout, out["free_values"], prepared.base, curve.time, curve.value,
+            weights, sse, uncertainty.dof)
+        if distance <= SECOND_ORDER_DISTANCE:
+            status = Status.ON_BOUND if on_bound else Status.SECOND_ORDER
+            message = STATUS_MESSAGES[status].replace("{names}", ", ".join(on_bound))
+            message = f"{message} (distance {distance:.1g} standard errors)"
+    converged = status in CONVERGED
+    aic, bic = information_criteria(sse, n_points, len(layout.free))
+    fitted = Parameters({n: merged[n].replace(value=values[n]) for n in layout.names})
+    if options.method == "adam":
+        method = "adam"
+    elif options.warmup_steps > 0:
+        method = f"lbfgs ({options.warmup_steps} adam steps first from random starts)"
+    else:
+        method = "lbfgs"
+    return FitResult(
+        model=prepared.model, params=fitted, init_params=merged, free_names=layout.free,
+        values=values, stderr=stderr, ci95=ci95, covariance=uncertainty.covariance,
+        correlation=uncertainty.correlation, loss=loss, loss_name=options.loss, sse=sse,
+        n_points=n_points, dof=uncertainty.dof, sigma=uncertainty.sigma, aic=aic, bic=bic,
+        n_evaluations=int(out["evaluations"]), n_steps=int(out["steps"]), n_starts=n_starts,
+        start_losses=out["start_losses"], grad_norm=float(out["grad_norm"]),
+        newton_step=float(out["newton_step"]), wall_time=wall_time, compile_time=compile_time,
+        success=converged and bool(np.isfinite(loss)), converged=converged, status=status,
+        message=message, method=method, curve=curve, weights=weights,
+        predicted=out["predicted"], residuals=residual, jacobian=out["jacobian"],
+        settings=settings,
+    )
+
+
+def fit(
+    model: Model | str,
+    data: Curve | tuple,
+    params: Mapping[str, Parameter | float] | None = None,
+    *,
+    loss: str = "sse",
+    weights: Sequence[float] | np.ndarray | None = None,
+    optimiser: Optimiser | None = None,
+    multistart: MultiStart | None = None,
+    relative_errors: RelativeErrors | bool | None = None,
+    **legacy: Any,
+) -> FitResult:
+    """Fit a residence-time model to one curve by gradient descent; see the module docstring.
+
+    **Arguments:**
+
+    - `model`: a :class:`~fitting.models.Model` or a built-in name (``'adm'``, ``'adm-fv'``,
+      ``'adm-open'``, ``'tanks'``, ``'four-compartment'``).
+    - `data`: a :class:`~fitting.data.Curve` or a ``(time, values)`` pair (time strictly
+      increasing, unit T; values E in 1/T).
+    - `params`: start values and settings overriding the model's defaults: name ->
+      :class:`~fitting.parameters.Parameter` (whole setting) or number (start value only).
+      Unset start values come from the model's method-of-moments guess when it has one.
+    - `loss`: ``'sse'`` (least squares, default) or ``'mae'`` (the source's mean absolute
+      error); see :mod:`fitting.losses`.
+    - `weights`: ``w_i >= 0`` multiplying the squared (or absolute) residuals, e.g.
+      ``1/sigma_i²``; zero drops a point.
+    - `optimiser`: :class:`~fitting.solve.Optimiser` (method, tolerances, step limit).
+    - `multistart`: :class:`~fitting.solve.MultiStart` (number of starts, seed, warm-up).
+    - `relative_errors`: :class:`~fitting.result.RelativeErrors` (or ``True``) to treat the
+      data's errors as proportional to the curve (multiplicative noise): fit, then refit with
+      weights ``1 / max(|model|, floor)²`` until consistent. Not combined with `weights`.
+    - `legacy`: the keywords of earlier releases (``n_starts``, ``seed``, ``method``,
+      ``max_steps``, ``tol``, ``ftol``, ``xtol``, ``warmup_steps``, ``learning_rate``);
+      deprecated.
+
+    **Returns:**
+
+    A :class:`~fitting.result.FitResult`.
+    """
+    settings = settings_from_keywords(loss, optimiser, multistart, relative_errors, **legacy)
+    return _fit_one(model, data, params, weights, settings)
+
+
+def _fit_one(model, data, params, weights, settings: FitSettings) -> FitResult:
+    if settings.relative_errors is not None:
+        return _fit_batch(model, [data], params, None if weights is None else [weights],
+                          settings)[0]
+    curve = as_curve(data)
+    multistart = settings.multistart
+    plan = make_plan(settings.loss, settings.optimiser, multistart)
+    prepared = prepare(model, curve, params, weights, multistart.n_starts, multistart.seed)
+    plan = _without_idle_warmup(plan, [prepared])
+    # One curve is a batch of one: fit and fit_many share the compiled solver.
+    solver = compiled_solver(prepared.model, prepared.layout, plan, "curves")
+    out, wall_time, compile_time = run_solver(
+        solver, prepared.starts[None], prepared.warm, prepared.base[None], curve.time[None],
+        curve.value[None], prepared.weights[None],
+    )
+    out = {k: v[0] for k, v in out.items()}
+    return _result(prepared, prepared.layout, plan, out, wall_time, compile_time, settings)
+
+
+def fit_many(
+    model: Model | str,
+    curves: Sequence[Curve | tuple],
+    params: Mapping[str, Parameter | float] | Sequence[Mapping | None] | None = None,
+    *,
+    loss: str = "sse",
+    weights: Sequence[Sequence[float] | None] | None = None,
+    optimiser: Optimiser | None = None,
+    multistart: MultiStart | None = None,
+    relative_errors: RelativeErrors | bool | None = None,
+    **legacy: Any,
+) -> list[FitResult]:
+    """Fit one model to many curves in a single vmapped, jitted call.
+
+    Curves of different lengths are padded to the longest with zero-weight points (times
+    continuing the last spacing), so they need not share a grid. Start values come from each
+    curve's moments (or `params`); the free/fixed/tied layout and the bounds are shared.
+
+    **Arguments:**
+
+    - `model`, `loss`, `optimiser`, `multistart`, `relative_errors`, `legacy`: as in
+      :func:`fit` (curve i uses seed ``seed + i``); relative-error passes are one vmapped
+      call each.
+    - `params`: as in :func:`fit`, for all curves, or a list with one setting per curve.
+    - `curves`: :class:`~fitting.data.Curve` objects or ``(time, values)`` pairs.
+    - `weights`: one weight array (or ``None``) per curve, or ``None``.
+
+    **Returns:**
+
+    One :class:`~fitting.result.FitResult` per curve, in order; `wall_time` is each curve's
+    share of the call.
+    """
+    settings = settings_from_keywords(loss, optimiser, multistart, relative_errors, **legacy)
+    return _fit_batch(model, curves, params, weights, settings)
+
+
+def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[FitResult]:
+    if settings.relative_errors is not None:
+        if weights is not None:
+            raise ValueError("relative_errors sets the weights itself; pass weights=None")
+        curves = [as_curve(c) for c in curves]
+        plain = dataclasses.replace(settings, relative_errors=None)
+        first = _fit_batch(model, curves, params, None, plain)
+        return _refit_with_relative_errors(model, curves, first, settings)
+    curves = [as_curve(c) for c in curves]
+    if not curves:
+        raise ValueError("fit_many needs at least one curve")
+    multistart = settings.multistart
+    n_starts, seed = multistart.n_starts, multistart.seed
+    options = make_plan(settings.loss, settings.optimiser, multistart)
+    per_curve_weights = weights if weights is not None else [None] * len(curves)
+    if len(per_curve_weights) != len(curves):
+        raise ValueError(f"{len(per_curve_weights)} weight arrays for {len(curves)} curves")
+    per_curve_params = (params if isinstance(params, Sequence) and not isinstance(params, str)
+                        else [params] * len(curves))
+    if len(per_curve_params) != len(curves):
+        raise ValueError(f"{len(per_curve_params)} parameter settings for {len(curves)} curves")
+
+    def prepare_all(count):
+        return [prepare(model, c, p, w, count, seed + i)
+                for i, (c, p, w) in enumerate(zip(curves, per_curve_params, per_curve_weights,
+                                                  strict=True))]
+
+    prepared = prepare_all(n_starts)
+    counts = {p.starts.shape[0] for p in prepared}
+    if len(counts) > 1:
+        # Default starts differ in number between curves: one batch needs one number.
+        prepared = prepare_all(max(counts))
+    options = _without_idle_warmup(options, prepared)
+    layout = prepared[0].layout
+    for other in prepared[1:]:
+        if dataclasses.replace(other.layout, scale=layout.scale) != layout:
+            raise ValueError("fit_many: every curve must have the same free, fixed and tied "
+                             "parameters and bounds")
+    length = max(len(c) for c in curves)
+    times, values, padded_weights, starts = [], [], [], []
+    for p in prepared:
+        curve, extra = p.curve, length - len(p.curve)
+        step = curve.time[-1] - curve.time[-2]
+        times.append(np.concatenate([curve.time, curve.time[-1] + step * np.arange(1, extra + 1)]))
+        values.append(np.concatenate([curve.value, np.zeros(extra)]))
+        padded_weights.append(np.concatenate([p.weights, np.zeros(extra)]))
+        # Layouts differ at most in the scale of unbounded parameters: re-express the starts.
+        free = p.layout.physical_from_unconstrained(jnp.asarray(p.starts.T)).T
+        starts.append(np.stack([layout.unconstrained_from_physical(np.asarray(row))
+                                for row in free]))
+    solver = compiled_solver(prepared[0].model, layout, options, "curves")
+    out, wall_time, compile_time = run_solver(
+        solver, np.stack(starts), prepared[0].warm, np.stack([p.base for p in prepared]),
+        np.stack(times), np.stack(values), np.stack(padded_weights),
+    )
+    share = wall_time / len(curves)
+    results = []
+    for i, p in enumerate(prepared):
+        n = len(p.curve)
+        single = {k: np.asarray(v[i]) for k, v in out.items()}
+        single["predicted"] = single["predicted"][:n]
+        single["jacobian"] = single["jacobian"][:n]
+        results.append(_result(p, layout, options, single, share,
+                               compile_time / len(curves), settings))
+    return results
+
+
+def _without_idle_warmup(options: SolverPlan, prepared: Sequence[Prepared]) -> SolverPlan:
+    """Drop the Adam warm-up from the compiled solver when no start is random."""
+    if options.warmup_steps > 0 and not any(p.warm.any() for p in prepared):
+        return dataclasses.replace(options, warmup_steps=0)
+    return options
+
+
+def _relative_weights(result: FitResult, loss: str, floor: float) -> np.ndarray:
+    size = np.abs(np.asarray(result.predicted, dtype=float))
+    size = np.maximum(size, floor * max(float(size.max(initial=0.0)), 1e-300))
+    return 1.0 / (size**2 if loss == "sse" else size)
+
+
+def _refit_with_relative_errors(model, curves: Sequence[Curve], first: Sequence[FitResult],
+                                settings: FitSettings) -> list[FitResult]:
+    """Iteratively reweighted fits: weights from the previous pass's model curves, until the
+    fitted values stop changing (the weights are then those of the fit's own curve)."""
+    results, passes = list(first), 1
+    evaluations = np.array([r.n_evaluations for r in first])
+    wall = np.array([r.wall_time for r in first])
+    compile_time = np.array([r.compile_time for r in first])
+    relative = settings.relative_errors
+    single = dataclasses.replace(
+        settings, relative_errors=None,
+        multistart=MultiStart(n_starts=1, seed=settings.multistart.seed,
+                              warmup_steps=settings.multistart.warmup_steps))
+    for _ in range(relative.max_passes - 1):
+        starts = [r.restart_parameters() for r in results]
+        weights = [_relative_weights(r, settings.loss, relative.floor) for r in results]
+        new = _fit_batch(model, curves, starts, weights, single)
+        passes += 1
+        evaluations += [r.n_evaluations for r in new]
+        wall += [r.wall_time for r in new]
+        compile_time += [r.compile_time for r in new]
+        change = max(abs(b.values[n] / a.values[n] - 1) if a.values[n] else abs(b.values[n])
+                     for a, b in zip(results, new, strict=True) for n in a.free_names)
+        results = new
+        if change <= relative.change:
+            break
+    method = f"relative errors: reweighted by 1/model^2 until consistent ({passes} passes)"
+    return [
+        _with_effective_dof(dataclasses.replace(
+            r, n_evaluations=int(e), wall_time=float(w), compile_time=float(c),
+            method=f"{r.method}; {method}", n_starts=f.n_starts, init_params=f.init_params,
+            settings=settings,
+        ))
+        for r, f, e, w, c in zip(results, first, evaluations, wall, compile_time, strict=True)
+    ]
+
+
+def _with_effective_dof(result: FitResult) -> FitResult:
+    """Residual variance of a relative-error least-squares fit, counting floored points right.
+
+    With variance ``σ² m_i²`` and weights ``w_i = 1 / max(m_i, floor)²``, the expected
+    ``Σ w r²`` is ``σ² Σ a_i (1 - h_i)`` with ``a_i = w_i m_i²`` (1, or below 1 where the
+    floor caps the weight) and ``h_i`` the leverages of the weighted fit: these are the
+    degrees of freedom (``n - p`` when no weight is capped). A point far below the floor
+    holds almost no residual, and counting it as a full degree of freedom would understate
+    ``s``. Standard errors, intervals and ``dof`` (then not a whole number) are rescaled.
+    """
+    if result.loss_name != "sse" or result.dof <= 0:
+        return result
+    model_size = np.abs(np.asarray(result.predicted, dtype=float))
+    dof = effective_degrees_of_freedom(result.jacobian, result.weights,
+                                       result.weights * model_size**2)
+    if not (math.isfinite(dof) and dof > 0):
+        return result
+    factor = math.sqrt(result.dof / dof)
+    quantile = t_quantile(dof)
+    stderr, ci95 = {}, {}
+    for name, error in result.stderr.items():
+        if error is None:
+            stderr[name], ci95[name] = None, None
+            continue
+        stderr[name] = error * factor
+        ci95[name] = interval(result.values[name], quantile * stderr[name],
+                               result.init_params[name])
+    return dataclasses.replace(result, stderr=stderr, ci95=ci95,
+                               covariance=result.covariance * factor**2,
+                               sigma=result.sigma * factor, dof=dof)

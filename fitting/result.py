@@ -1,0 +1,363 @@
+"""The result of a fit: the curve with its units, values, uncertainty, statistics, settings.
+
+A :class:`FitResult` is immutable (a frozen dataclass with read-only arrays), like
+``scipy.optimize``'s results with lmfit's readable report.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import equinox as eqx
+import numpy as np
+
+from fitting.data import Curve
+from fitting.models import Model
+from fitting.parameters import Parameters
+from fitting.solve import MultiStart, Optimiser
+
+__all__ = ["FitResult", "FitSettings", "FitStats", "RelativeErrors"]
+
+
+class RelativeErrors(eqx.Module):
+    """Settings of relative-error fits (errors proportional to the curve), immutable.
+
+    After a first fit the curve is fitted again from its result with weights
+    ``1 / max(|model|, floor · peak)²`` (``1 / max(|model|, floor · peak)`` for the mean
+    absolute error), and again, until the fitted values change by less than `change`
+    (iteratively reweighted least squares).
+
+    **Arguments:**
+
+    - `floor`: floor of the weights' model value, as a fraction of the model's peak (a
+      measurement's error never vanishes; an unbounded weight would let one point near zero
+      decide the fit).
+    - `max_passes`: most fits in all.
+    - `change`: relative change of every fitted value between passes below which the
+      weights count as consistent with the fit.
+    """
+
+    floor: float = eqx.field(default=1e-3, static=True)
+    max_passes: int = eqx.field(default=10, static=True)
+    change: float = eqx.field(default=1e-8, static=True)
+
+    def __check_init__(self):
+        if not 0 < self.floor < 1:
+            raise ValueError(f"floor must lie in (0, 1), got {self.floor}")
+        if not self.max_passes >= 2:
+            raise ValueError(f"max_passes must be at least 2, got {self.max_passes}")
+        if not self.change > 0:
+            raise ValueError(f"change must be positive, got {self.change}")
+
+
+class FitSettings(eqx.Module):
+    """Every setting a fit ran with, immutable: loss, optimiser, starts, error model.
+
+    **Arguments:**
+
+    - `loss`: ``'sse'`` or ``'mae'``.
+    - `optimiser`: :class:`~fitting.solve.Optimiser`.
+    - `multistart`: :class:`~fitting.solve.MultiStart`.
+    - `relative_errors`: :class:`RelativeErrors`, or ``None`` for errors of equal size.
+    """
+
+    loss: str = eqx.field(default="sse", static=True)
+    optimiser: Optimiser = Optimiser()
+    multistart: MultiStart = MultiStart()
+    relative_errors: RelativeErrors | None = None
+
+    def __check_init__(self):
+        if self.loss not in ("sse", "mae"):
+            raise ValueError(f"loss must be one of ['mae', 'sse'], got {self.loss!r}")
+
+
+@dataclass(frozen=True)
+class FitStats:
+    """Statistics of a fit: loss, ``Σ w r²``, degrees of freedom, ``s``, AIC, BIC, counts, times.
+
+    Units: those of the data (``sse`` in its unit squared, ``sigma`` in its unit), seconds
+    for the times.
+    """
+
+    loss: float
+    loss_name: str
+    sse: float
+    n_points: int
+    dof: float
+    sigma: float
+    aic: float
+    bic: float
+    n_evaluations: int
+    n_steps: int
+    n_starts: int
+    wall_time: float
+    compile_time: float
+
+
+@dataclass(frozen=True, eq=False)
+class FitResult:
+    """The outcome of a fit: values, uncertainty, convergence and the fitted curve.
+
+    Attributes (units are those of the model's parameters and of the data):
+
+    - `values`: fitted value of every parameter (free, fixed and tied), by name.
+    - `stderr`: standard error by name (``None`` for fixed parameters; tied ones by
+      propagation through their expression); from the Gauss–Newton curvature, see
+      :mod:`fitting.uncertainty`.
+    - `ci95`: ``(low, high)`` 95 % interval by name (Student t with ``n - p`` degrees of
+      freedom), ``None`` for fixed parameters.
+    - `correlation`, `covariance`: matrices over `free_names`.
+    - `loss`: the minimised loss, unscaled (``Σ w r²`` or the mean absolute error).
+    - `sse`: ``Σ w r²`` at the optimum whatever the loss (for AIC/BIC and errors).
+    - `dof`: degrees of freedom of ``sse``, ``n - p`` (not a whole number for relative-error
+      fits, where weights capped at the floor count less); `sigma`: ``sqrt(sse / dof)``.
+    - `n_evaluations`: objective evaluations (value and gradient), all starts together.
+    - `wall_time`: seconds the compiled solver ran (its share, for :func:`fit_many`);
+      `compile_time`: seconds spent compiling it first (0 when reused).
+    - `success`: converged with a finite loss; `converged`: a convergence test was met;
+      `status` and `message`: which stopping rule ended the fit.
+    - `model`, `params` (:class:`Parameters` with fitted values), `curve` (the data, with
+      its time unit; `time`, `observed`, `name` and `time_unit` read from it), `weights`,
+      `predicted`, `residuals` (model - data), `jacobian` (d predicted / d free), all
+      read-only arrays.
+    - `settings`: the :class:`FitSettings` the fit ran with.
+    """
+
+    model: Model
+    params: Parameters
+    init_params: Parameters
+    free_names: tuple[str, ...]
+    values: dict[str, float]
+    stderr: dict[str, float | None]
+    ci95: dict[str, tuple[float, float] | None]
+    covariance: np.ndarray
+    correlation: np.ndarray
+    loss: float
+    loss_name: str
+    sse: float
+    n_points: int
+    dof: float
+    sigma: float
+    aic: float
+    bic: float
+    n_evaluations: int
+    n_steps: int
+    n_starts: int
+    start_losses: np.ndarray
+    grad_norm: float
+    newton_step: float
+    wall_time: float
+    success: bool
+    converged: bool
+    status: int
+    message: str
+    method: str
+    curve: Curve = field(repr=False)
+    weights: np.ndarray = field(repr=False)
+    predicted: np.ndarray = field(repr=False)
+    residuals: np.ndarray = field(repr=False)
+    jacobian: np.ndarray = field(repr=False)
+    compile_time: float = 0.0
+    settings: FitSettings | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        for name in ("weights", "predicted", "residuals", "jacobian", "start_losses",
+                     "covariance", "correlation"):
+            array = np.array(getattr(self, name), dtype=float)
+            array.flags.writeable = False
+            object.__setattr__(self, name, array)
+
+    @property
+    def time(self) -> np.ndarray:
+        """Sample times of the fitted curve, in :attr:`time_unit`."""
+        return self.curve.time
+
+    @property
+    def observed(self) -> np.ndarray:
+        """The fitted data values (E in 1/:attr:`time_unit` for a normalised curve)."""
+        return self.curve.value
+
+    @property
+    def name(self) -> str:
+        """The curve's label."""
+        return self.curve.name
+
+    @property
+    def time_unit(self) -> str:
+        """Unit of the curve's times, and of the time-like parameters (``"s"``, ``"min"``, ...)."""
+        return self.curve.time_unit
+
+    @property
+    def stats(self) -> FitStats:
+        """The fit statistics as one block (loss, SSE, dof, s, AIC, BIC, counts, times)."""
+        return FitStats(self.loss, self.loss_name, self.sse, self.n_points, self.dof,
+                        self.sigma, self.aic, self.bic, self.n_evaluations, self.n_steps,
+                        self.n_starts, self.wall_time, self.compile_time)
+
+    def equivalent_adm(self, length: float | None = None) -> dict[str, Any] | None:
+        """The closed–closed ADM equivalent to this fit, from the model's hook, with units.
+
+        **Arguments:**
+
+        - `length`: blender length ``L`` (m) for ``v`` and ``D_z``; ``None`` gives ``tau``
+          and ``Pe`` only (there is no default length).
+
+        **Returns:** ``{"tau_<unit>", "peclet", "length_m", "velocity_m_per_s",
+        "dispersion_m2_per_s", ...}`` (``None`` where undefined), or ``None`` when the model
+        has no equivalent ADM.
+        """
+        if self.model.equivalent_adm is None:
+            return None
+        return self.model.equivalent_adm(self.values, length, self.curve.time_unit)
+
+    def __repr__(self) -> str:
+        values = ", ".join(f"{n}={v:.6g}" for n, v in self.values.items())
+        return (f"FitResult({self.model.name}: {values}; loss={self.loss:.4g}, "
+                f"converged={self.converged})")
+
+    def report(self, correlation_threshold: float = 0.1) -> str:
+        """A readable fit report (like lmfit's): statistics, values ± errors, correlations."""
+        lines = [f"[[Model]] {self.model.name}: {self.model.description}"]
+        if self.name:
+            lines.append(f"    data: {self.name}")
+        lines += [
+            "[[Fit statistics]]",
+            f"    method             = {self.method}, {self.n_starts} start(s)",
+            f"    status             = {self.message}",
+            f"    gradient norm      = {self.grad_norm:.3g} (scaled loss, transformed "
+            "parameters)",
+            f"    Gauss-Newton step  = {self.newton_step:.3g} (distance to the optimum, "
+            "transformed parameters)",
+            f"    steps              = {self.n_steps}",
+            f"    evaluations        = {self.n_evaluations} (value + gradient)",
+            f"    wall time          = {self.wall_time:.4g} s (+ {self.compile_time:.3g} s "
+            "compiling)",
+            f"    data points        = {self.n_points}",
+            f"    variables          = {len(self.free_names)}",
+            f"    degrees of freedom = {self.dof:.4g}",
+            f"    loss ({self.loss_name})         = {self.loss:.6g}",
+            f"    sum of squares     = {self.sse:.6g}",
+            f"    residual std (s)   = {self.sigma:.6g}",
+            f"    AIC                = {self.aic:.4f}",
+            f"    BIC                = {self.bic:.4f}",
+            "[[Variables]]",
+        ]
+        width = max(len(n) for n in self.values)
+        for name, value in self.values.items():
+            setting = self.init_params[name]
+            label = f"    {name + ':':<{width + 1}} {value:<14.7g}"
+            if setting.expr is not None:
+                error = self.stderr[name]
+                error_text = f" +/- {error:.4g}" if error is not None else ""
+                lines.append(f"{label}{error_text} == '{setting.expr}'")
+            elif not setting.vary:
+                lines.append(f"{label}(fixed)")
+            else:
+                error = self.stderr[name]
+                low, high = self.ci95[name] if self.ci95[name] else (math.nan, math.nan)
+                relative = abs(error / value) * 100 if value else math.inf
+                lines.append(
+                    f"{label}+/- {error:<11.4g}({relative:.2f}%)  95% CI [{low:.6g}, {high:.6g}]"
+                    f"  (init = {setting.value:.6g})"
+                )
+        pairs = [
+            (abs(self.correlation[i, j]), self.free_names[i], self.free_names[j],
+             self.correlation[i, j])
+            for i in range(len(self.free_names))
+            for j in range(i + 1, len(self.free_names))
+            if abs(self.correlation[i, j]) > correlation_threshold
+        ]
+        if pairs:
+            lines.append(
+                f"[[Correlations]] (unreported correlations are < {correlation_threshold})"
+            )
+            for _, a, b, r in sorted(pairs, reverse=True):
+                lines.append(f"    C({a}, {b}) = {r:+.4f}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary (plain floats, ``None`` for undefined numbers)."""
+
+        def number(x):
+            return float(x) if x is not None and np.isfinite(x) else None
+
+        parameters = {}
+        for name, value in self.values.items():
+            setting = self.init_params[name]
+            interval = self.ci95[name]
+            parameters[name] = {
+                "value": number(value),
+                "stderr": number(self.stderr[name]),
+                "ci95": [number(interval[0]), number(interval[1])] if interval else None,
+                "vary": bool(setting.vary and setting.expr is None),
+                "expr": setting.expr,
+                "min": setting.min,
+                "max": setting.max,
+                "init": setting.value,
+            }
+        return {
+            "model": self.model.name,
+            "data": self.name,
+            "time_unit": self.time_unit,
+            "parameters": parameters,
+            "correlation": {
+                "names": list(self.free_names),
+                "matrix": [[number(x) for x in row] for row in self.correlation],
+            },
+            "loss": number(self.loss),
+            "loss_name": self.loss_name,
+            "sse": number(self.sse),
+            "aic": number(self.aic),
+            "bic": number(self.bic),
+            "n_points": self.n_points,
+            "dof": self.dof,
+            "converged": self.converged,
+            "success": self.success,
+            "message": self.message,
+            "method": self.method,
+            "n_starts": self.n_starts,
+            "n_evaluations": self.n_evaluations,
+            "n_steps": self.n_steps,
+            "wall_time": self.wall_time,
+            "compile_time": self.compile_time,
+        }
+
+    def restart_parameters(self) -> Parameters:
+        """This fit's settings with the fitted values as start values (kept inside bounds),
+        to start another fit from this one."""
+        start = Parameters()
+        for name, setting in self.init_params.items():
+            if name in self.free_names:
+                value = self.values[name]
+                if setting.min is not None:
+                    value = max(value, setting.min)
+                if setting.max is not None:
+                    value = min(value, setting.max)
+                setting = setting.replace(value=value)
+            start[name] = setting
+        return start
+
+    def identifiability(self):
+        """Deprecated: use :func:`fitting.diagnostics.identifiability` (kept one release)."""
+        warnings.warn("FitResult.identifiability() is deprecated; use "
+                      "fitting.diagnostics.identifiability(result)", DeprecationWarning,
+                      stacklevel=2)
+        return importlib.import_module("fitting.diagnostics").identifiability(self)
+
+    def profile(self, name: str, values: Sequence[float] | None = None, **options: Any):
+        """Deprecated: use :func:`fitting.diagnostics.profile_likelihood` (kept one release)."""
+        warnings.warn("FitResult.profile() is deprecated; use "
+                      "fitting.diagnostics.profile_likelihood(result, name)", DeprecationWarning,
+                      stacklevel=2)
+        return importlib.import_module("fitting.diagnostics").profile_likelihood(
+            self, name, values, **options)
+
+    def to_json(self, **kwargs: Any) -> str:
+        """:meth:`to_dict` as a JSON string."""
+        return json.dumps(self.to_dict(), **kwargs)
