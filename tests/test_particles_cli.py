@@ -32,7 +32,8 @@ def test_simulate_vblender_writes_counts_and_chi_square_for_each_report(tmp_path
     data = json.loads(path.read_text())
     assert [r["step"] for r in data["reports"]] == [0, 1000, 2000, 3000]
     assert data["steps_completed"] == 3000 and not data["interrupted"]
-    assert "step 3000/3000" in capsys.readouterr().err  # progress on standard error
+    table = capsys.readouterr().out.splitlines()  # the reports, one line each
+    assert [line.split()[0] for line in table[1:]] == ["0", "1000", "2000", "3000"]
     counts = np.array([r["species1_counts"] for r in data["reports"]])
     assert counts[0].tolist() == [200_000, 200_000, 100_000, 0, 0]  # loading E
     assert np.all(counts.sum(axis=1) == 500_000)
@@ -77,7 +78,7 @@ def test_simulate_continuous_writes_rtd_close_to_network_mean(tmp_path):
     # 1,676 tracers, RTD standard deviation ~ mean: 3 standard errors is about 7 %.
     assert rtd["mean_residence_time_s"] == pytest.approx(exact, rel=0.08)
     samples = data["outflow_samples"]
-    assert len(samples["fractions"]) == 20 and samples["species"] == "tracer"
+    assert len(samples["fractions"]) == 30 and samples["species"] == "tracer"  # the default
 
 
 def test_simulate_continuous_grid_with_feeder_reports_vrr(tmp_path):
@@ -105,7 +106,7 @@ def test_simulate_continuous_grid_with_feeder_reports_vrr(tmp_path):
     )
     samples = json.loads(path.read_text())["outflow_samples"]
     assert samples["vrr"] == pytest.approx(samples["variance_in"] / samples["variance_out"])
-    assert len(samples["inflow_fractions"]) == len(samples["fractions"]) == 20
+    assert len(samples["inflow_fractions"]) == len(samples["fractions"]) == 30
 
 
 @pytest.mark.parametrize(
@@ -134,12 +135,23 @@ def test_simulate_rejects_negative_steps_with_status_2(capsys):
 
 
 def test_interrupted_simulation_still_writes_results_so_far(tmp_path, monkeypatch):
-    import axialmix.particles.cli as cli
+    import axialmix._progress
 
-    def interrupt(step, total, elapsed):
-        raise KeyboardInterrupt
+    class InterruptingBar:
+        # Stands for the progress bar; Ctrl-C arrives while the run reports step 1000.
+        n = 0
 
-    monkeypatch.setattr(cli, "stderr_progress", interrupt)
+        def __init__(self, *args, **kwargs):
+            pass
+
+        def update(self, steps):
+            self.n += steps
+            raise KeyboardInterrupt
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(axialmix._progress, "progress_bar", InterruptingBar)
     path = tmp_path / "partial.json"
     argv = [
         "simulate",
@@ -151,7 +163,7 @@ def test_interrupted_simulation_still_writes_results_so_far(tmp_path, monkeypatc
         "--json",
         str(path),
     ]
-    assert main(argv) == 0
+    assert main(argv) == 130  # interrupted: 128 + SIGINT
     data = json.loads(path.read_text())
     assert data["interrupted"] and data["steps_completed"] == 1000
     assert [r["step"] for r in data["reports"]] == [0, 1000]

@@ -32,14 +32,19 @@ from axialmix.particles.sampling import (
 )
 from axialmix.particles.simulate import (
     ENGINES,
+    MAX_SEED,
+    MemoryEstimate,
     SimulationResult,
     TracerPulse,
+    memory_estimate,
     simulate,
     stderr_progress,
 )
 
 __all__ = [
     "ENGINES",
+    "MAX_SEED",
+    "MemoryEstimate",
     "ParticleNetwork",
     "SimulationResult",
     "TracerPulse",
@@ -49,6 +54,7 @@ __all__ = [
     "constant_feed",
     "exit_age_from_outflow",
     "feeder_feed",
+    "memory_estimate",
     "four_compartment",
     "particle_axial_radial_grid",
     "particle_four_compartment",

@@ -22,17 +22,30 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
+from axialmix._deprecation import warn_deprecated
 from axialmix.particles import _kernels
 from axialmix.particles._random import seed_generator, xoshiro_state
 from axialmix.particles.description import ParticleNetwork
 from axialmix.particles.feed import check_feed_schedule
 
-__all__ = ["ENGINES", "SimulationResult", "TracerPulse", "simulate", "stderr_progress"]
+__all__ = [
+    "ENGINES",
+    "MAX_SEED",
+    "MemoryEstimate",
+    "SimulationResult",
+    "TracerPulse",
+    "memory_estimate",
+    "simulate",
+    "stderr_progress",
+]
 
 ENGINES = ("count", "identity")
+MAX_SEED = 2**32 - 1
+"""Largest seed: the compiled kernels draw from numpy's legacy generator, seeded with 32 bits."""
 _MAX_CHUNK_STEPS = 10_000
 _EVENT_BLOCK = 1 << 20
 
@@ -146,9 +159,73 @@ class SimulationResult:
 
 
 def stderr_progress(step: int, total: int, elapsed: float) -> None:
-    """Print ``step / total`` and elapsed time on one line of standard error."""
+    """Deprecated: pass a callback updating :func:`axialmix._progress.progress_bar` instead.
+
+    Prints ``step / total`` and the elapsed time on one line of standard error.
+    """
+    warn_deprecated(
+        "axialmix.particles.stderr_progress", "a callback updating axialmix._progress.progress_bar"
+    )
     share = 100.0 * step / total if total else 100.0
     print(f"step {step}/{total} ({share:.1f} %), {elapsed:.2f} s", file=sys.stderr, flush=True)
+
+
+class MemoryEstimate(NamedTuple):
+    """Memory a simulation will allocate, in bytes, split by what it grows with."""
+
+    per_step: int
+    """Bytes of the records that grow with the number of steps (feed schedule, outflow)."""
+    per_particle: int
+    """Bytes that grow with the number of particles (the identity engine's particle slots)."""
+    fixed: int
+    """Reports, tables and buffers."""
+
+    @property
+    def total(self) -> int:
+        """All of it (bytes)."""
+        return self.per_step + self.per_particle + self.fixed
+
+
+def memory_estimate(
+    network: ParticleNetwork,
+    steps: int,
+    n_species: int,
+    *,
+    engine: str = "count",
+    reports: int = 2,
+    tracked: bool = False,
+) -> MemoryEstimate:
+    """The memory :func:`simulate` allocates for a run, before running it.
+
+    Counts the arrays the run creates: the feed schedule ``(steps, inlets, species)`` and
+    the outflow record ``(steps, species)`` (int64 each, plus the float copy a feed builder
+    makes), the counts at each report, and for the identity engine one slot code per
+    particle (4 or 8 bytes, plus a byte while they are built) and the event buffer.
+
+    **Arguments:**
+
+    - `network`: the blender.
+    - `steps`: number of steps.
+    - `n_species`: number of species.
+    - `engine`: ``"count"`` or ``"identity"``.
+    - `reports`: number of recorded reports.
+    - `tracked`: identity engine: whether some species' moves are recorded.
+
+    **Returns:** a :class:`MemoryEstimate` (bytes).
+    """
+    steps, n_species = int(steps), int(n_species)
+    inlets = int(network.inlets().size) if network.is_continuous else 0
+    per_step = steps * n_species * 8 * (1 + 2 * inlets)
+    per_particle = 0
+    fixed = (reports + 2) * network.n_compartments * n_species * 8
+    if engine == "identity":
+        numbers = network.n_particles + network.throughput * steps
+        fits = numbers << _kernels.species_bits(n_species) <= np.iinfo(np.int32).max
+        per_particle = network.n_particles * ((4 if fits else 8) + 1)
+        fixed += 8 * (network.moves_per_step + int(network.handed_out.max(initial=0)))
+        if tracked:
+            fixed += 32 * max(_EVENT_BLOCK, 2 * (network.moves_per_step + network.throughput))
+    return MemoryEstimate(per_step, per_particle, fixed)
 
 
 def _initial_counts(network: ParticleNetwork, initial_counts) -> np.ndarray:
@@ -375,7 +452,8 @@ def simulate(
       species)``; each row must add up to the compartment's hold-up.
     - `steps`: number of time steps.
     - `engine`: ``"count"`` or ``"identity"`` (same random process; see the module).
-    - `seed`: seed of the run; the same seed, engine and inputs give the same result.
+    - `seed`: seed of the run, 0 to :data:`MAX_SEED`; the same seed, engine and inputs give
+      the same result.
     - `feed`: feed schedule ``(steps, inlets, species)`` for a continuous blender (see
       :mod:`axialmix.particles.feed`); ``None`` for a batch blender.
     - `tracer`: optional :class:`TracerPulse`.
@@ -384,9 +462,10 @@ def simulate(
       always recorded.
     - `tracked_species`: identity engine: species whose every move is recorded (default:
       the tracer's species, if there is a tracer).
-    - `progress`: called as ``progress(step, steps, elapsed_seconds)`` at each report;
-      :func:`stderr_progress` prints it. A ``KeyboardInterrupt`` raised there or by Ctrl-C
-      stops the run after the current chunk and returns what was done.
+    - `progress`: called as ``progress(step, steps, elapsed_seconds)`` at each report (for
+      example to update an :func:`axialmix._progress.progress_bar`). A
+      ``KeyboardInterrupt`` raised there or by Ctrl-C stops the run after the current chunk
+      and returns what was done.
 
     **Returns:** a :class:`SimulationResult`.
     """
@@ -395,6 +474,9 @@ def simulate(
     if int(steps) != steps or steps < 0:
         raise ValueError(f"steps must be a non-negative whole number, got {steps}.")
     steps = int(steps)
+    if int(seed) != seed or not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"seed must be a whole number from 0 to {MAX_SEED}, got {seed}.")
+    seed = int(seed)
     counts = _initial_counts(network, initial_counts)
     n_species = counts.shape[1]
     if tracer is not None:
