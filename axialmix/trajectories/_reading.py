@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import csv
-import math
-import re
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
+from .._csv import DataError, Table, read_table
 from ._trajectory import Trajectory
 
 _COLUMN_ALIASES = {
@@ -24,45 +22,25 @@ _COLUMN_ALIASES = {
 }
 _LENGTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
 _TIME_UNITS = {"s": 1.0, "ms": 1e-3}
-_UNIT_IN_HEADER = re.compile(r"^(?P<name>.*?)\s*(?:\((?P<p>[^)]*)\)|\[(?P<b>[^\]]*)\])\s*$")
-
-
-def _parse_header_cell(cell: str) -> tuple[str, str | None]:
-    """Split a header cell such as ``'x (mm)'``, ``'x [mm]'``, ``'X_mm'`` into name and unit."""
-    text = cell.strip().lstrip("\ufeff").strip().lower()
-    match = _UNIT_IN_HEADER.match(text)
-    if match:
-        unit = (match.group("p") or match.group("b") or "").strip()
-        return match.group("name").strip().replace(" ", "_"), unit or None
-    if "/" in text:
-        name, unit = text.rsplit("/", 1)
-        return name.strip().replace(" ", "_"), unit.strip() or None
-    text = text.replace(" ", "_")
-    for unit in ("_mm", "_cm", "_ms", "_m", "_s"):
-        stem = text[: -len(unit)]
-        if text.endswith(unit) and any(stem in aliases for aliases in _COLUMN_ALIASES.values()):
-            return stem, unit[1:]
-    return text, None
+_SUFFIX_UNITS = ("mm", "cm", "ms", "m", "s")  # header suffixes such as ``X_mm``, ``time_s``
 
 
 def _resolve_unit(
-    path: Path, kind: str, requested: str | None, stated: set[str], table: dict[str, float]
+    table: Table, kind: str, requested: str | None, stated: set[str], scales: dict[str, float]
 ) -> float:
     """Scale factor to SI for a quantity whose unit may be requested and/or stated in headers."""
     for unit in stated | ({requested} if requested else set()):
-        if unit not in table:
-            raise ValueError(
-                f"{path}: row 1: unknown {kind} unit {unit!r} (known: {', '.join(table)})."
-            )
+        if unit not in scales:
+            raise table.error(f"unknown {kind} unit {unit!r} (known: {', '.join(scales)})")
     if len(stated) > 1:
-        raise ValueError(f"{path}: row 1: {kind} columns state different units {sorted(stated)}.")
+        raise table.error(f"{kind} columns state different units {sorted(stated)}")
     if requested and stated and requested not in stated:
-        raise ValueError(
-            f"{path}: row 1: header states {kind} unit {next(iter(stated))!r} but "
-            f"{kind}_unit={requested!r} was requested."
+        raise table.error(
+            f"header states {kind} unit {next(iter(stated))!r} but "
+            f"{kind}_unit={requested!r} was requested"
         )
     unit = requested or (next(iter(stated)) if stated else ("m" if kind == "length" else "s"))
-    return table[unit]
+    return scales[unit]
 
 
 def read_trajectories(
@@ -81,9 +59,9 @@ def read_trajectories(
     spaces when the header has none of these; header names then have no spaces); blank
     lines and lines starting with ``#`` are skipped. Without an id column the whole file is
     one trajectory named after the file. Rows of one trajectory need not be contiguous but
-    must have strictly increasing times. Errors are one-line ``ValueError`` messages naming
-    the file, the row (the line number in the file, header = row 1, as in a spreadsheet)
-    and the problem.
+    must have strictly increasing times. The file is read by the shared table reader
+    (:mod:`axialmix._csv`, streamed); errors are one-line ``DataError`` (a ``ValueError``)
+    messages ``"<file>, row <r>: <problem>"``, the row being the line number in the file.
 
     **Arguments:**
 
@@ -102,104 +80,71 @@ def read_trajectories(
     path = Path(path)
     if int(min_points) != min_points or min_points < 2:
         raise ValueError(f"min_points must be an integer of at least 2, got {min_points!r}.")
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as error:
-        raise ValueError(f"{path}: cannot be read ({error.strerror}).") from None
-    numbered = [
-        (number, line)
-        for number, line in enumerate(text.splitlines(), start=1)
-        if line.strip() and not line.lstrip().startswith("#")
-    ]
-    if not numbered:
-        raise ValueError(f"{path}: the file is empty (a header row t, x, y, z is needed).")
-    header_row, header_line = numbered[0]
-    delimiter = max([",", ";", "\t"], key=header_line.count)
-
-    def split_cells(line: str) -> list[str]:
-        if header_line.count(delimiter) == 0:
-            return line.split()
-        return next(csv.reader([line], delimiter=delimiter))
-
-    header = split_cells(header_line)
-    parsed = [_parse_header_cell(cell) for cell in header]
+    table = read_table(path, header=True, suffix_units=_SUFFIX_UNITS)
+    header = [column.label for column in table.columns]
 
     columns: dict[str, int] = {}
     units: dict[str, str | None] = {}
-    for index, (name, unit) in enumerate(parsed):
+    for column in table.columns:
+        name = column.name.replace(" ", "_")
         for role, aliases in _COLUMN_ALIASES.items():
             if name in aliases:
                 if role in columns:
-                    raise ValueError(
-                        f"{path}: row {header_row}: two columns give {role!r} "
-                        f"({header[columns[role]].strip()!r} and {header[index].strip()!r})."
+                    raise table.error(
+                        f"two columns give {role!r} ({header[columns[role]]!r} and "
+                        f"{column.label!r})"
                     )
-                columns[role] = index
-                units[role] = unit
+                columns[role] = column.index
+                units[role] = column.unit.lower() if column.unit else None
     missing = [role for role in ("time", "x", "y", "z") if role not in columns]
     if missing:
-        found = ", ".join(cell.strip() for cell in header)
-        raise ValueError(
-            f"{path}: row {header_row}: missing column(s) {', '.join(missing)} "
-            f"(found: {found}); expected t, x, y, z and optionally a trajectory id."
+        found = ", ".join(header)
+        raise table.error(
+            f"missing column(s) {', '.join(missing)} (found: {found}); expected t, x, y, z "
+            "and optionally a trajectory id"
         )
     length_scale = _resolve_unit(
-        path, "length", length_unit,
+        table, "length", length_unit,
         {units[r] for r in ("x", "y", "z") if units[r] is not None}, _LENGTH_UNITS,
     )
     time_scale = _resolve_unit(
-        path, "time", time_unit,
+        table, "time", time_unit,
         {units["time"]} if units["time"] is not None else set(), _TIME_UNITS,
     )
+    numbered, values = table.numbers(
+        [columns[role] for role in ("time", "x", "y", "z")], allow_extra_cells=True
+    )
+    if "id" in columns:
+        index, label = columns["id"], header[columns["id"]]
+        ids = []
+        for row, cells in table.rows(allow_extra_cells=True):
+            identifier = cells[index].strip().strip('"').strip()
+            if not identifier:
+                raise table.error(f"empty cell in column {label!r}", row)
+            ids.append(identifier)
+    else:
+        ids = [path.stem] * len(numbered)
 
     records: dict[str, list[tuple[int, float, float, float, float]]] = {}
-    default_id = path.stem
-    for row, line in numbered[1:]:
-        cells = split_cells(line)
-        if len(cells) < len(header):
-            raise ValueError(
-                f"{path}: row {row}: expected {len(header)} cells, found {len(cells)}."
-            )
-        values = []
-        for role in ("time", "x", "y", "z"):
-            cell = cells[columns[role]].strip()
-            column = header[columns[role]].strip()
-            if not cell:
-                raise ValueError(f"{path}: row {row}: column {column!r} is empty.")
-            try:
-                value = float(cell)
-            except ValueError:
-                raise ValueError(
-                    f"{path}: row {row}: column {column!r} is not a number: {cell!r}."
-                ) from None
-            if not math.isfinite(value):
-                raise ValueError(
-                    f"{path}: row {row}: column {column!r} is {cell!r}; finite numbers needed."
-                )
-            values.append(value)
-        if "id" in columns:
-            trajectory_id = cells[columns["id"]].strip()
-            if not trajectory_id:
-                column = header[columns["id"]].strip()
-                raise ValueError(f"{path}: row {row}: column {column!r} is empty.")
-        else:
-            trajectory_id = default_id
+    for row, trajectory_id, sample in zip(numbered.tolist(), ids, values.tolist(), strict=True):
         previous = records.setdefault(trajectory_id, [])
-        if previous and values[0] <= previous[-1][1]:
-            raise ValueError(
-                f"{path}: row {row}: time {values[0]:g} of trajectory {trajectory_id!r} is not "
-                f"greater than the previous time {previous[-1][1]:g} (row {previous[-1][0]})."
+        if previous and sample[0] <= previous[-1][1]:
+            raise table.error(
+                f"time {sample[0]:g} of trajectory {trajectory_id!r} is not greater than the "
+                f"previous time {previous[-1][1]:g} (row {previous[-1][0]})",
+                row,
             )
-        previous.append((row, *values))
+        previous.append((row, *sample))
     if not records:
-        raise ValueError(f"{path}: the file has a header but no data rows.")
+        raise DataError(path, "the file has a header but no data rows")
 
     trajectories = []
     for trajectory_id, rows in records.items():
         if len(rows) < min_points:
-            raise ValueError(
-                f"{path}: row {rows[0][0]}: trajectory {trajectory_id!r} has {len(rows)} "
-                f"point(s) (rows {rows[0][0]}-{rows[-1][0]}); at least {min_points} are needed."
+            raise table.error(
+                f"trajectory {trajectory_id!r} has {len(rows)} point(s) (rows "
+                f"{rows[0][0]}-{rows[-1][0]}); at least {min_points} are needed",
+                rows[0][0],
             )
         data = np.array([r[1:] for r in rows], dtype=float)
         trajectories.append(
