@@ -53,6 +53,13 @@ from ._responses import (
     outlet_response,
     species_fractions,
 )
+from ._timevarying import (
+    RateSchedule,
+    ScheduleSolver,
+    scheduled_amounts,
+    scheduled_exit_age,
+    scheduled_outlet_response,
+)
 
 __all__ = [
     "CompartmentNetwork",
@@ -66,7 +73,9 @@ __all__ = [
     "Inlet",
     "MomentMatchedADM",
     "Outlet",
+    "RateSchedule",
     "ResidenceTimeMoments",
+    "ScheduleSolver",
     "TIME_UNITS",
     "V_BLENDER_LOADINGS",
     "adm_chain",
@@ -89,6 +98,9 @@ __all__ = [
     "outlet_response",
     "peclet_from_variance_ratio",
     "residence_time_moments",
+    "scheduled_amounts",
+    "scheduled_exit_age",
+    "scheduled_outlet_response",
     "species_fractions",
     "step_matrix",
     "tanks_in_series",

@@ -1,0 +1,97 @@
+"""Unit operations and lines: from an RTD to manufacturing decisions (MODELS.md §7, §8).
+
+* **Units and lines.** :class:`Unit` is one unit operation's RTD (closed–closed or open–open
+  ADM, tanks in series, a compartment network, a measured curve, or any :class:`UnitModel`);
+  it gives E, F, the ramp response ``∫F``, the moments and the transfer function G(s),
+  exactly. :class:`Line` puts units in series: transfer functions multiply, means and
+  variances add, and E and F come from an exact piecewise-linear convolution on a grid with
+  Richardson extrapolation (sixth order).
+* **Disturbances.** :class:`Disturbance` (step, pulse, square, ramp, sampled trace) and
+  :func:`outlet_response`; :func:`frequency_response` and the variance reduction ratio of
+  feeder noise from a spectrum (:func:`spectral_variance_reduction_ratio`), for white noise
+  (:func:`white_noise_variance_reduction_ratio`) or from a sampled series
+  (:func:`series_variance_reduction_ratio`).
+* **Funnel plot.** :func:`funnel`: the largest outlet deviation ``M max_t [F(t) - F(t-d)]``
+  for every magnitude and duration, exact and vectorised.
+* **Diversion.** :func:`diversion_window` (when to start and stop, how much), and
+  :func:`conservative_diversion_window`, which samples a fit's parameter distribution
+  (:func:`sample_units`, the hook for fit results) for a window that covers the true one with
+  a stated probability.
+* **Changing throughput.** :class:`FlowSchedule` and the cumulative-throughput clock
+  (:func:`throughput_clock`, :func:`equivalent_time`, :func:`exit_age_changing_throughput`,
+  :func:`outlet_response_changing_throughput`); networks with scheduled rates are in
+  :mod:`axialmix.network` (:class:`~axialmix.network.RateSchedule`).
+* **Plots.** :func:`plot_line`, :func:`plot_response`, :func:`plot_funnel`,
+  :func:`plot_diversion` (matplotlib is imported when a plot is drawn).
+"""
+
+from axialmix.line._disturbance import Disturbance, OutletResponse, outlet_response
+from axialmix.line._diversion import (
+    ConservativeDiversion,
+    DiversionWindow,
+    conservative_diversion_window,
+    diversion_window,
+    sample_units,
+)
+from axialmix.line._frequency import (
+    frequency_response,
+    series_variance_reduction_ratio,
+    spectral_variance_reduction_ratio,
+    white_noise_variance_reduction_ratio,
+)
+from axialmix.line._funnel import FunnelResult, FunnelSettings, funnel
+from axialmix.line._line import Line, LineSettings, TabulatedRTD
+from axialmix.line._models import (
+    CLOSED_CLOSED,
+    EMPIRICAL,
+    NETWORK,
+    OPEN_OPEN,
+    TANKS,
+    UnitModel,
+)
+from axialmix.line._plots import plot_diversion, plot_funnel, plot_line, plot_response
+from axialmix.line._throughput import (
+    FlowSchedule,
+    equivalent_time,
+    exit_age_changing_throughput,
+    outlet_response_changing_throughput,
+    throughput_clock,
+)
+from axialmix.line._unit import Unit
+
+__all__ = [
+    "CLOSED_CLOSED",
+    "EMPIRICAL",
+    "NETWORK",
+    "OPEN_OPEN",
+    "TANKS",
+    "ConservativeDiversion",
+    "Disturbance",
+    "DiversionWindow",
+    "FlowSchedule",
+    "FunnelResult",
+    "FunnelSettings",
+    "Line",
+    "LineSettings",
+    "OutletResponse",
+    "TabulatedRTD",
+    "Unit",
+    "UnitModel",
+    "conservative_diversion_window",
+    "diversion_window",
+    "equivalent_time",
+    "exit_age_changing_throughput",
+    "frequency_response",
+    "funnel",
+    "outlet_response",
+    "outlet_response_changing_throughput",
+    "plot_diversion",
+    "plot_funnel",
+    "plot_line",
+    "plot_response",
+    "sample_units",
+    "series_variance_reduction_ratio",
+    "spectral_variance_reduction_ratio",
+    "throughput_clock",
+    "white_noise_variance_reduction_ratio",
+]

@@ -1,0 +1,392 @@
+"""Diversion: when to divert out-of-specification material, and how much (MODELS.md §8).
+
+Diversion starts when the predicted outlet content leaves the specification limits and ends
+when it returns; the diverted amount is the flow integrated over that window. With several
+excursions the window runs from the first exit to the last return (everything in between is
+diverted, which is what a diverter valve does).
+
+The uncertainty of a fitted RTD enters by sampling: parameter vectors are drawn from the
+fit's (normal or log-normal) distribution, each gives a window, and the conservative window
+runs from a low quantile of the starts to a high quantile of the stops (a Bonferroni split of
+the allowed miss rate between the two ends), so that it contains the window of the true RTD
+with at least the stated probability under that distribution.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.typing import ArrayLike
+
+from axialmix._validation import require_finite, require_increasing_times, require_positive
+from axialmix.line._disturbance import Disturbance, lag_horizon, response_at
+from axialmix.line._line import Line, TabulatedRTD, as_evaluator
+from axialmix.line._throughput import FlowSchedule
+from axialmix.line._unit import Unit
+
+__all__ = [
+    "ConservativeDiversion",
+    "DiversionWindow",
+    "conservative_diversion_window",
+    "diversion_window",
+    "sample_units",
+]
+
+_BISECTIONS = 60
+
+
+class DiversionWindow(eqx.Module):
+    """When diversion starts and stops, and the amount diverted, for one RTD.
+
+    **Arguments:**
+
+    - `start`: time the outlet content first leaves the limits (time unit; NaN when it never
+      does; the first output time when it is already out there).
+    - `stop`: time it last returns (time unit; NaN when it never leaves; +inf when it is
+      still out at the last output time).
+    - `diverted_amount`: ``∫_start^stop Q dt`` (amount unit; 0 or +inf as above).
+    - `diverts`: whether the content leaves the limits at any output time.
+    - `times`, `outlet`: the output times and the predicted outlet content there.
+    - `lower`, `upper`: the specification limits (content unit).
+    - `time_unit`, `content_unit`, `amount_unit`: units.
+    """
+
+    start: Array
+    stop: Array
+    diverted_amount: Array
+    diverts: Array
+    times: Array
+    outlet: Array
+    lower: Array
+    upper: Array
+    time_unit: str = eqx.field(static=True, default="s")
+    content_unit: str = eqx.field(static=True, default="")
+    amount_unit: str = eqx.field(static=True, default="")
+
+
+def _amount(flow, start: Array, stop: Array) -> Array:
+    if isinstance(flow, FlowSchedule):
+        return flow.throughput(stop) - flow.throughput(start)
+    return jnp.asarray(flow, float) * (stop - start)
+
+
+def _bisect(excess, low: Array, high: Array) -> Array:
+    """A sign change of `excess` in [low, high], where excess(low) and excess(high) differ."""
+    low_sign = excess(low) > 0
+
+    def body(_, bracket):
+        a, b = bracket
+        middle = 0.5 * (a + b)
+        same = (excess(middle) > 0) == low_sign
+        return jnp.where(same, middle, a), jnp.where(same, b, middle)
+
+    a, b = jax.lax.fori_loop(0, _BISECTIONS, body, (low, high))
+    return 0.5 * (a + b)
+
+
+def _window(evaluator, disturbance, times, target, lower, upper, flow):
+    """Start, stop, amount, diverts and the outlet content on the times (traceable)."""
+    outlet = target + response_at(evaluator, disturbance, times)
+
+    def excess_at(t):
+        content = target + response_at(evaluator, disturbance, t)
+        return jnp.maximum(content - upper, lower - content)
+
+    out = jnp.maximum(outlet - upper, lower - outlet) > 0
+    diverts = jnp.any(out)
+    last_index = times.shape[0] - 1
+    first = jnp.argmax(out)
+    last = last_index - jnp.argmax(out[::-1])
+    start = jnp.where(
+        first == 0,
+        times[0],
+        _bisect(excess_at, times[jnp.maximum(first - 1, 0)], times[first]),
+    )
+    stop = jnp.where(
+        last == last_index,
+        jnp.inf,
+        _bisect(excess_at, times[last], times[jnp.minimum(last + 1, last_index)]),
+    )
+    amount = jnp.where(stop == jnp.inf, jnp.inf, _amount(flow, start, jnp.where(
+        stop == jnp.inf, start, stop)))
+    start = jnp.where(diverts, start, jnp.nan)
+    stop = jnp.where(diverts, stop, jnp.nan)
+    amount = jnp.where(diverts, amount, 0.0)
+    return start, stop, amount, diverts, outlet
+
+
+@eqx.filter_jit
+def _window_jit(evaluator, disturbance, times, target, lower, upper, flow):
+    return _window(evaluator, disturbance, times, target, lower, upper, flow)
+
+
+def _check(rtd, disturbance, times, target, lower, upper, flow):
+    require_increasing_times("times", times)
+    for name, value in (("target", target), ("lower", lower), ("upper", upper)):
+        require_finite(name, value)
+    if np.ndim(times) != 1 or np.shape(times)[0] < 2:
+        raise ValueError("times must be one-dimensional with at least two samples.")
+    if not isinstance(disturbance, Disturbance):
+        raise ValueError(f"disturbance must be a Disturbance, got {type(disturbance).__name__}.")
+    if disturbance.time_unit != rtd.time_unit:
+        raise ValueError(
+            f"the disturbance is in {disturbance.time_unit!r} but the RTD in {rtd.time_unit!r}."
+        )
+    if not isinstance(flow, FlowSchedule):
+        require_positive("flow", flow)
+    if (
+        np.ndim(lower) == 0
+        and np.ndim(upper) == 0
+        and not isinstance(lower, jax.core.Tracer)
+        and not isinstance(upper, jax.core.Tracer)
+        and not float(lower) < float(upper)
+    ):
+        raise ValueError(f"lower ({float(lower):g}) must be below upper ({float(upper):g}).")
+
+
+def diversion_window(
+    rtd: Unit | Line | TabulatedRTD,
+    disturbance: Disturbance,
+    times: ArrayLike,
+    *,
+    target: ArrayLike,
+    lower: ArrayLike,
+    upper: ArrayLike,
+    flow: ArrayLike | FlowSchedule = 1.0,
+    content_unit: str = "",
+    amount_unit: str = "",
+) -> DiversionWindow:
+    """When to start and stop diverting after a disturbance, and how much material that is.
+
+    The outlet content ``target + E ⊗ δu`` (:func:`outlet_response`) is scanned on `times`;
+    the first exit from ``[lower, upper]`` and the last return are then located exactly by
+    bisection on the model between the neighbouring times (to 1e-18 of the spacing).
+
+    **Arguments:**
+
+    - `rtd`: a :class:`Unit`, :class:`Line` or :class:`TabulatedRTD`.
+    - `disturbance`: the inlet deviation (in content units, e.g. a feeder trace).
+    - `times`: scan times (time unit), strictly increasing; fine enough that no excursion
+      falls between two of them.
+    - `target`: the content at steady state (content unit).
+    - `lower`, `upper`: specification limits (content unit), e.g. ``0.95 × target`` and
+      ``1.05 × target`` for ±5 %.
+    - `flow`: the outlet flow, a number (amount per time unit) or a
+      :class:`~axialmix.line.FlowSchedule`.
+    - `content_unit`, `amount_unit`: units carried to the result.
+
+    **Returns:**
+
+    A :class:`DiversionWindow`.
+    """
+    _check(rtd, disturbance, times, target, lower, upper, flow)
+    times = jnp.asarray(times, float)
+    evaluator = as_evaluator(rtd, lag_horizon(disturbance, times))
+    target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
+    start, stop, amount, diverts, outlet = _window_jit(
+        evaluator, disturbance, times, target, lower, upper, flow
+    )
+    return DiversionWindow(
+        start, stop, amount, diverts, times, outlet, lower, upper,
+        rtd.time_unit, content_unit, amount_unit,
+    )
+
+
+# ------------------------------------------------------------------ uncertainty
+def sample_units(
+    unit_factory: Callable[[Array], Unit | Line],
+    values: ArrayLike,
+    covariance: ArrayLike,
+    samples: int,
+    *,
+    seed: int = 0,
+    scale: str = "linear",
+) -> tuple[Unit | Line, Array]:
+    """Units (or lines) for samples of a fitted parameter vector: the hook for fit results.
+
+    Parameter vectors are drawn from ``N(values, covariance)`` (``scale="linear"``) or,
+    for positive parameters, ``log p ~ N(log values, covariance)`` with the covariance of
+    the logarithms (``scale="log"``, the relative-error form of a fit's covariance), and
+    mapped through `unit_factory` under ``jax.vmap``.
+
+    **Arguments:**
+
+    - `unit_factory`: function of one parameter vector ``(p,)`` returning a :class:`Unit`
+      or :class:`Line` (it must be traceable: build units from the array entries).
+    - `values`: the fitted values ``(p,)``.
+    - `covariance`: their covariance ``(p, p)`` (of the logarithms for ``scale="log"``),
+      symmetric positive semi-definite.
+    - `samples`: number of draws.
+    - `seed`: random seed.
+    - `scale`: ``"linear"`` or ``"log"``.
+
+    **Returns:**
+
+    ``(units, parameters)``: a batched Unit or Line whose leaves carry a leading axis of
+    length `samples` (use it with ``jax.vmap``), and the drawn parameters ``(samples, p)``.
+    """
+    values = jnp.atleast_1d(jnp.asarray(values, float))
+    covariance = jnp.atleast_2d(jnp.asarray(covariance, float))
+    require_finite("values", values)
+    require_finite("covariance", covariance)
+    p = values.shape[0]
+    if values.ndim != 1 or covariance.shape != (p, p):
+        raise ValueError(f"covariance must have shape ({p}, {p}), got {covariance.shape}.")
+    if scale not in ("linear", "log"):
+        raise ValueError(f"scale must be 'linear' or 'log', got {scale!r}.")
+    if not isinstance(samples, int) or samples < 1:
+        raise ValueError(f"samples must be a positive integer, got {samples!r}.")
+    if scale == "log":
+        require_positive("values", values)
+    eigenvalues, vectors = np.linalg.eigh(np.asarray(covariance))
+    if eigenvalues.min() < -1e-10 * max(eigenvalues.max(), 1e-300):
+        raise ValueError("covariance must be positive semi-definite.")
+    root = vectors * np.sqrt(np.clip(eigenvalues, 0.0, None))
+    normal = jax.random.normal(jax.random.PRNGKey(seed), (samples, p))
+    centre = jnp.log(values) if scale == "log" else values
+    drawn = centre + normal @ jnp.asarray(root).T
+    parameters = jnp.exp(drawn) if scale == "log" else drawn
+    return jax.vmap(unit_factory)(parameters), parameters
+
+
+class ConservativeDiversion(eqx.Module):
+    """A diversion window with its uncertainty, from samples of a fit's parameters.
+
+    **Arguments:**
+
+    - `nominal`: the :class:`DiversionWindow` at the fitted values.
+    - `start`, `stop`, `diverted_amount`: the conservative window (time unit, amount unit):
+      it contains the true window with probability at least `coverage` under the sampled
+      distribution (NaN start and stop when too few samples divert to call for it).
+    - `coverage`: the stated probability.
+    - `sample_starts`, `sample_stops`: the windows of the samples (``+inf``/``-inf`` for
+      samples that do not divert, NaN for samples whose prediction is not finite).
+    - `diverting_fraction`: share of the valid samples that divert.
+    - `valid_samples`: samples with a finite prediction (the others are left out).
+    - `method`: ``"sampling"`` (Monte Carlo over the parameter distribution).
+    - `time_unit`, `amount_unit`: units.
+    """
+
+    nominal: DiversionWindow
+    start: Array
+    stop: Array
+    diverted_amount: Array
+    coverage: float = eqx.field(static=True)
+    sample_starts: Array
+    sample_stops: Array
+    diverting_fraction: Array
+    valid_samples: int = eqx.field(static=True)
+    method: str = eqx.field(static=True, default="sampling")
+    time_unit: str = eqx.field(static=True, default="s")
+    amount_unit: str = eqx.field(static=True, default="")
+
+
+@eqx.filter_jit
+def _sample_windows(units, disturbance, times, target, lower, upper, flow, horizon):
+    def one(unit):
+        evaluator = as_evaluator(unit, horizon)
+        start, stop, _, diverts, outlet = _window(
+            evaluator, disturbance, times, target, lower, upper, flow
+        )
+        return start, stop, diverts, jnp.all(jnp.isfinite(outlet))
+
+    return jax.vmap(one)(units)
+
+
+def conservative_diversion_window(
+    unit_factory: Callable[[Array], Unit | Line],
+    values: ArrayLike,
+    covariance: ArrayLike,
+    disturbance: Disturbance,
+    times: ArrayLike,
+    *,
+    target: ArrayLike,
+    lower: ArrayLike,
+    upper: ArrayLike,
+    flow: ArrayLike | FlowSchedule = 1.0,
+    coverage: float = 0.95,
+    samples: int = 1000,
+    seed: int = 0,
+    scale: str = "linear",
+    amount_unit: str = "",
+) -> ConservativeDiversion:
+    """A diversion window that covers the true one with a stated probability (by sampling).
+
+    Parameter vectors are drawn as in :func:`sample_units`, each gives a window
+    (:func:`diversion_window`, vmapped), and the conservative window runs from the
+    ``(1 - coverage)/2`` quantile of the starts to the ``(1 + coverage)/2`` quantile of the
+    stops. By the union bound it contains the window of a parameter vector drawn from the
+    same distribution with probability at least `coverage`; samples that do not divert count
+    as windows that start at +inf and stop at -inf. Sampling (rather than a first-order
+    propagation through JAX derivatives) is used because a window need not exist for every
+    parameter vector and its ends are not smooth functions of the parameters where an
+    excursion appears or merges with another.
+
+    **Arguments:**
+
+    - `unit_factory`: function of a parameter vector returning a :class:`Unit` or :class:`Line`.
+    - `values`, `covariance`: the fit's parameter vector and covariance (see `scale`).
+    - `disturbance`, `times`, `target`, `lower`, `upper`, `flow`: as in
+      :func:`diversion_window`.
+    - `coverage`: the probability to cover (between 0 and 1).
+    - `samples`: number of parameter draws.
+    - `seed`: random seed.
+    - `scale`: ``"linear"`` or ``"log"`` (see :func:`sample_units`).
+    - `amount_unit`: unit of the diverted amount.
+
+    **Returns:**
+
+    A :class:`ConservativeDiversion`.
+    """
+    if not 0.0 < coverage < 1.0:
+        raise ValueError(f"coverage must lie between 0 and 1, got {coverage!r}.")
+    nominal_rtd = unit_factory(jnp.atleast_1d(jnp.asarray(values, float)))
+    nominal = diversion_window(
+        nominal_rtd, disturbance, times, target=target, lower=lower, upper=upper, flow=flow,
+        amount_unit=amount_unit,
+    )
+    units, _ = sample_units(unit_factory, values, covariance, samples, seed=seed, scale=scale)
+    times = jnp.asarray(times, float)
+    target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
+    starts, stops, diverts, finite = _sample_windows(
+        units, disturbance, times, target, lower, upper, flow, lag_horizon(disturbance, times)
+    )
+    starts = jnp.where(diverts, starts, jnp.inf)
+    stops = jnp.where(diverts, stops, -jnp.inf)
+    starts = jnp.where(finite, starts, jnp.nan)
+    stops = jnp.where(finite, stops, jnp.nan)
+    valid = np.asarray(finite)
+    valid_count = int(valid.sum())
+    if valid_count == 0:
+        raise ValueError("no sampled parameter vector gives a finite prediction.")
+    miss = (1.0 - coverage) / 2.0
+    kept_starts = np.asarray(starts)[valid]
+    kept_stops = np.asarray(stops)[valid]
+    start = np.quantile(kept_starts, miss, method="lower")
+    stop = np.quantile(kept_stops, 1.0 - miss, method="higher")
+    if not np.isfinite(start) or not stop >= start:
+        start = stop = np.nan
+        amount = jnp.asarray(0.0)
+    elif np.isinf(stop):
+        amount = jnp.asarray(np.inf)
+    else:
+        amount = _amount(flow, jnp.asarray(start), jnp.asarray(stop))
+    return ConservativeDiversion(
+        nominal,
+        jnp.asarray(start),
+        jnp.asarray(stop),
+        amount,
+        float(coverage),
+        starts,
+        stops,
+        jnp.asarray(np.asarray(diverts)[valid].mean()),
+        valid_count,
+        "sampling",
+        nominal.time_unit,
+        amount_unit,
+    )

@@ -1,0 +1,401 @@
+"""The residence-time models a unit operation can be built from, as plain function bundles.
+
+A :class:`UnitModel` names the functions that evaluate one kind of model from its parameters
+(a dict of arrays) and its static structure (a compartment network, the sample times of a
+measured curve, or None). Every function works elementwise on time arrays of any shape and is
+jit-, grad- and vmap-able in the parameters. New models (exchange-zone ADM, series models, a
+generic transfer-function inversion) plug in by building a :class:`UnitModel` from their own
+functions; only ``exit_age`` and ``cumulative`` are required.
+
+Built-in models: the closed–closed and open–open ADM and tanks in series
+(:mod:`axialmix.analytic`, exact), a continuous compartment network
+(:mod:`axialmix.network`, exact matrix exponentials) and a measured curve used empirically
+(the piecewise-linear interpolant of its samples, zero outside them, integrated exactly).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from axialmix.analytic import (
+    exit_age_closed,
+    exit_age_open,
+    exit_age_tanks,
+    mean_closed,
+    mean_open,
+    mean_tanks,
+    step_response_closed,
+    step_response_open,
+    step_response_tanks,
+    transfer_function_closed,
+    variance_closed,
+    variance_open,
+    variance_tanks,
+)
+from axialmix.network import (
+    cumulative_exit_age,
+    exit_age,
+    generator_matrix,
+    outlet_response,
+    residence_time_moments,
+)
+
+__all__ = [
+    "CLOSED_CLOSED",
+    "EMPIRICAL",
+    "NETWORK",
+    "OPEN_OPEN",
+    "TANKS",
+    "UnitModel",
+]
+
+Parameters = dict[str, Array]
+CurveFunction = Callable[[Array, Parameters, Any], Array]
+
+
+@dataclass(frozen=True)
+class UnitModel:
+    """The functions that evaluate one kind of residence-time model (hashable, static).
+
+    Each curve function is called as ``f(t, parameters, structure)`` with ``t`` an array of
+    any shape (time unit of the unit), ``parameters`` a dict of arrays and ``structure`` the
+    unit's static structure; it returns an array of the shape of ``t``.
+
+    **Arguments:**
+
+    - `name`: the model's name (``"closed_closed"``, ...), shown in reports and plots.
+    - `parameter_names`: the keys the parameter dict must have.
+    - `positive`: the parameters that must be positive (checked on concrete values).
+    - `exit_age`: ``E(t)`` in 1/time, zero for ``t < 0``.
+    - `cumulative`: ``F(t) = ∫_0^t E``, dimensionless.
+    - `ramp`: ``R(t) = ∫_0^t F``, the response to a unit ramp (time unit), or None: it is
+      then integrated from ``cumulative`` on a grid (Romberg, see :mod:`axialmix.line`).
+    - `transfer_function`: ``G(s) = ∫ E e^{-st} dt`` with ``s`` complex in 1/time, or None.
+    - `moments`: ``(mean, variance)`` from the parameters (time, time²), or None: they are
+      then taken from the derivatives of ``transfer_function`` at ``s = 0``.
+    """
+
+    name: str
+    parameter_names: tuple[str, ...]
+    exit_age: CurveFunction
+    cumulative: CurveFunction
+    ramp: CurveFunction | None = None
+    transfer_function: CurveFunction | None = None
+    moments: Callable[[Parameters, Any], tuple[Array, Array]] | None = None
+    positive: tuple[str, ...] = ()
+
+
+# ------------------------------------------------------------------ closed–closed ADM
+def _closed_exit_age(t, p, _):
+    return exit_age_closed(t, p["tau"], p["peclet"])
+
+
+def _closed_cumulative(t, p, _):
+    return step_response_closed(t, p["tau"], p["peclet"])
+
+
+def _closed_transfer(s, p, _):
+    return transfer_function_closed(s * p["tau"], p["peclet"])
+
+
+def _closed_moments(p, _):
+    return mean_closed(p["tau"], p["peclet"]), variance_closed(p["tau"], p["peclet"])
+
+
+CLOSED_CLOSED = UnitModel(
+    name="closed_closed",
+    parameter_names=("tau", "peclet"),
+    positive=("tau", "peclet"),
+    exit_age=_closed_exit_age,
+    cumulative=_closed_cumulative,
+    transfer_function=_closed_transfer,
+    moments=_closed_moments,
+)
+"""Closed–closed (Danckwerts) ADM, parameters ``tau`` (time) and ``peclet`` (MODELS.md §2)."""
+
+
+# ------------------------------------------------------------------ open–open ADM
+def _open_exit_age(t, p, _):
+    return exit_age_open(t, p["tau"], p["peclet"])
+
+
+def _open_cumulative(t, p, _):
+    return step_response_open(t, p["tau"], p["peclet"])
+
+
+def _open_transfer(s, p, _):
+    # The open–open E is theta times the inverse-Gaussian density of mean 1 and shape Pe/2,
+    # whose transform is e^{Pe(1-q)/2}; multiplying by theta differentiates it in -s, giving
+    # G = e^{Pe(1-q)/2} / q with q = sqrt(1 + 4 s tau / Pe) (Levenspiel's open vessel).
+    peclet = jnp.asarray(p["peclet"], float)
+    q = jnp.sqrt(1.0 + 4.0 * jnp.asarray(s, complex) * p["tau"] / peclet)
+    return jnp.exp(0.5 * peclet * (1.0 - q)) / q
+
+
+def _open_moments(p, _):
+    return mean_open(p["tau"], p["peclet"]), variance_open(p["tau"], p["peclet"])
+
+
+OPEN_OPEN = UnitModel(
+    name="open_open",
+    parameter_names=("tau", "peclet"),
+    positive=("tau", "peclet"),
+    exit_age=_open_exit_age,
+    cumulative=_open_cumulative,
+    transfer_function=_open_transfer,
+    moments=_open_moments,
+)
+"""Open–open ADM, parameters ``tau = L/v`` (time) and ``peclet``; mean ``(1 + 2/Pe) tau``."""
+
+
+# ------------------------------------------------------------------ tanks in series
+def _tanks_exit_age(t, p, _):
+    return exit_age_tanks(t, p["tau"], p["n_tanks"])
+
+
+def _tanks_cumulative(t, p, _):
+    return step_response_tanks(t, p["tau"], p["n_tanks"])
+
+
+def _tanks_ramp(t, p, _):
+    # ∫_0^t F = t F(t) - ∫_0^t s E(s) ds, and s E_n(s) = tau E_{n+1}(s) for the gamma density
+    # of shape n and rate n/tau, so the second term is tau P(n+1, n t/tau).
+    tau, n = p["tau"], p["n_tanks"]
+    t = jnp.asarray(t, float)
+    positive = t > 0
+    scaled = n * jnp.where(positive, t, 1.0) / tau
+    value = t * jax.scipy.special.gammainc(n, scaled) - tau * jax.scipy.special.gammainc(
+        n + 1.0, scaled
+    )
+    return jnp.where(positive, value, 0.0)
+
+
+def _tanks_transfer(s, p, _):
+    n = jnp.asarray(p["n_tanks"], float)
+    return jnp.exp(-n * jnp.log1p(jnp.asarray(s, complex) * p["tau"] / n))
+
+
+def _tanks_moments(p, _):
+    return mean_tanks(p["tau"], p["n_tanks"]), variance_tanks(p["tau"], p["n_tanks"])
+
+
+TANKS = UnitModel(
+    name="tanks",
+    parameter_names=("tau", "n_tanks"),
+    positive=("tau", "n_tanks"),
+    exit_age=_tanks_exit_age,
+    cumulative=_tanks_cumulative,
+    ramp=_tanks_ramp,
+    transfer_function=_tanks_transfer,
+    moments=_tanks_moments,
+)
+"""Tanks in series (gamma RTD), parameters ``tau`` (total mean, time) and ``n_tanks`` (real)."""
+
+
+# ------------------------------------------------------------------ compartment network
+def _sorted_call(function: Callable[[Array], Array], t: Array) -> Array:
+    """Evaluate a function of increasing times at times of any shape and order."""
+    t = jnp.asarray(t, float)
+    flat = t.reshape(-1)
+    order = jnp.argsort(flat)
+    values = function(flat[order])
+    return jnp.zeros_like(flat).at[order].set(values).reshape(t.shape)
+
+
+def _network_exit_age(t, p, network):
+    return _sorted_call(lambda x: exit_age(network, x, p["rates"], p["outflow_rates"]), t)
+
+
+def _network_cumulative(t, p, network):
+    return _sorted_call(
+        lambda x: cumulative_exit_age(network, x, p["rates"], p["outflow_rates"]), t
+    )
+
+
+def _network_ramp(t, p, network):
+    # The response to the inlet signal u(t) = t is ∫_0^t F; outlet_response integrates a
+    # piecewise-linear inlet exactly (augmented matrix exponential), starting empty at 0.
+    def ramp(x):
+        x = jnp.maximum(x, 0.0)
+        times = jnp.concatenate([jnp.zeros(1), x])
+        return outlet_response(network, times, times, p["rates"], p["outflow_rates"])[1:]
+
+    return _sorted_call(ramp, t)
+
+
+def _network_transfer(s, p, network):
+    generator = generator_matrix(network, p["rates"], p["outflow_rates"]).astype(complex)
+    split = jnp.asarray(network.feed_split, complex)
+    outflow = (
+        jnp.zeros(network.n_compartments)
+        .at[network.outlet_indices]
+        .add(jnp.asarray(p["outflow_rates"], float))
+    )
+    identity = jnp.eye(network.n_compartments, dtype=complex)
+    s = jnp.asarray(s, complex)
+
+    def one(value):
+        return outflow @ jnp.linalg.solve(value * identity - generator, split)
+
+    return jax.vmap(one)(s.reshape(-1)).reshape(s.shape)
+
+
+def _network_moments(p, network):
+    moments = residence_time_moments(network, p["rates"], p["outflow_rates"])
+    return moments.mean, moments.variance
+
+
+NETWORK = UnitModel(
+    name="network",
+    parameter_names=("rates", "outflow_rates"),
+    exit_age=_network_exit_age,
+    cumulative=_network_cumulative,
+    ramp=_network_ramp,
+    transfer_function=_network_transfer,
+    moments=_network_moments,
+)
+"""A continuous compartment network (structure: the network; parameters: its rate arrays)."""
+
+
+# ------------------------------------------------------------------ measured curve
+def _segments(knots: tuple[float, ...]):
+    time = jnp.asarray(knots, float)
+    return time, jnp.diff(time)
+
+
+def _locate(t: Array, time: Array) -> tuple[Array, Array]:
+    """Segment index of each t (clipped to the curve) and the offset into that segment."""
+    index = jnp.clip(jnp.searchsorted(time, t, side="right") - 1, 0, time.shape[0] - 2)
+    return index, t - time[index]
+
+
+def _empirical_exit_age(t, p, knots):
+    time, _ = _segments(knots)
+    return jnp.interp(jnp.asarray(t, float), time, p["exit_age"], left=0.0, right=0.0)
+
+
+def _empirical_integrals(values: Array, steps: Array) -> tuple[Array, Array]:
+    """F and R at the knots for the piecewise-linear density (exact)."""
+    slopes = jnp.diff(values)
+    cumulative_ = jnp.concatenate(
+        [jnp.zeros(1), jnp.cumsum(steps * (values[:-1] + values[1:]) / 2)]
+    )
+    ramp_pieces = (
+        steps * cumulative_[:-1] + steps**2 * values[:-1] / 2 + steps**2 * slopes / 6
+    )
+    return cumulative_, jnp.concatenate([jnp.zeros(1), jnp.cumsum(ramp_pieces)])
+
+
+def _empirical_cumulative(t, p, knots):
+    time, steps = _segments(knots)
+    values = jnp.asarray(p["exit_age"], float)
+    cumulative_, _ = _empirical_integrals(values, steps)
+    t = jnp.asarray(t, float)
+    index, x = _locate(t, time)
+    x = jnp.clip(x, 0.0, steps[index])
+    slope = (values[index + 1] - values[index]) / steps[index]
+    inside = cumulative_[index] + values[index] * x + slope * x**2 / 2
+    return jnp.where(t <= time[0], 0.0, inside)
+
+
+def _empirical_ramp(t, p, knots):
+    time, steps = _segments(knots)
+    values = jnp.asarray(p["exit_age"], float)
+    cumulative_, ramp_ = _empirical_integrals(values, steps)
+    t = jnp.asarray(t, float)
+    index, x = _locate(t, time)
+    x_inside = jnp.clip(x, 0.0, steps[index])
+    slope = (values[index + 1] - values[index]) / steps[index]
+    inside = (
+        ramp_[index]
+        + cumulative_[index] * x_inside
+        + values[index] * x_inside**2 / 2
+        + slope * x_inside**3 / 6
+    )
+    beyond = ramp_[-1] + cumulative_[-1] * (t - time[-1])
+    return jnp.where(t <= time[0], 0.0, jnp.where(t > time[-1], beyond, inside))
+
+
+def _phi1(z: Array) -> Array:
+    """(1 - e^{-z}) / z, equal to 1 at z = 0."""
+    nonzero = z != 0
+    safe = jnp.where(nonzero, z, 1.0)
+    return jnp.where(nonzero, -jnp.expm1(-safe) / safe, 1.0)
+
+
+def _phi2(z: Array) -> Array:
+    """∫_0^1 x e^{-z x} dx = (1 - (1 + z) e^{-z}) / z², by its series for |z| < 0.5."""
+    small = jnp.abs(z) < 0.5
+    safe = jnp.where(small, 1.0, z)
+    direct = (_phi1(safe) - jnp.exp(-safe)) / safe
+    # Σ_k (-z)^k / (k! (k + 2)); 18 terms are exact to round-off for |z| < 0.5.
+    series = jnp.zeros_like(z)
+    term_factorial = 1.0
+    for k in range(18):
+        series = series + (-z) ** k / (term_factorial * (k + 2))
+        term_factorial *= k + 1
+    return jnp.where(small, series, direct)
+
+
+def _empirical_transfer(s, p, knots):
+    time, steps = _segments(knots)
+    values = jnp.asarray(p["exit_age"], float)
+    s = jnp.asarray(s, complex)[..., None]
+    z = s * steps
+    pieces = (
+        jnp.exp(-s * time[:-1])
+        * steps
+        * (values[:-1] * _phi1(z) + (values[1:] - values[:-1]) * _phi2(z))
+    )
+    return jnp.sum(pieces, axis=-1)
+
+
+def _empirical_moments(p, knots):
+    time, steps = _segments(knots)
+    values = jnp.asarray(p["exit_age"], float)
+    slopes = values[1:] - values[:-1]
+    area = jnp.sum(steps * (values[:-1] + values[1:]) / 2)
+    start = time[:-1]
+    first = jnp.sum(steps * (values[:-1] * (start + steps / 2) + slopes * (start / 2 + steps / 3)))
+    mean = first / area
+    # Central second moment with the knots shifted by the mean (no cancellation).
+    shifted = start - mean
+    second = jnp.sum(
+        steps
+        * (
+            values[:-1] * (shifted**2 + shifted * steps + steps**2 / 3)
+            + slopes * (shifted**2 / 2 + 2 * shifted * steps / 3 + steps**2 / 4)
+        )
+    )
+    return mean, second / area
+
+
+EMPIRICAL = UnitModel(
+    name="empirical",
+    parameter_names=("exit_age",),
+    exit_age=_empirical_exit_age,
+    cumulative=_empirical_cumulative,
+    ramp=_empirical_ramp,
+    transfer_function=_empirical_transfer,
+    moments=_empirical_moments,
+)
+"""A measured curve (structure: its sample times; parameter ``exit_age``: E at those times)."""
+
+
+def moments_from_transfer_function(
+    transfer_function: CurveFunction, parameters: Parameters, structure: Hashable
+) -> tuple[Array, Array]:
+    """Mean ``-G'(0)`` and variance ``G''(0) - G'(0)²`` by differentiating G along real s."""
+
+    def real_part(s):
+        return jnp.real(transfer_function(jnp.asarray(s, float), parameters, structure))
+
+    first = jax.grad(real_part)(0.0)
+    second = jax.grad(jax.grad(real_part))(0.0)
+    return -first, second - first**2
