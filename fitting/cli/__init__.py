@@ -41,29 +41,9 @@ class _Parser(argparse.ArgumentParser):
         raise _UsageError(message)
 
 
-class _ParticleSimulateCommand:
-    """The ``simulate`` sub-command of :mod:`axialmix.particles.cli`, in the module interface
-    (used until ``fitting.cli.simulate`` exists)."""
-
-    @staticmethod
-    def add_parser(subparsers) -> argparse.ArgumentParser:
-        module = importlib.import_module("axialmix.particles.cli")
-        return module.add_simulate_parser(subparsers)
-
-    @staticmethod
-    def run(args: argparse.Namespace) -> int:
-        return int(args.func(args) or 0)
-
-
-def _command(name: str) -> ModuleType | type:
+def _command(name: str) -> ModuleType:
     """The module of sub-command `name` (imported now, not before)."""
-    module_name = COMMANDS[name][0]
-    try:
-        return importlib.import_module(module_name)
-    except ModuleNotFoundError as error:
-        if name == "simulate" and error.name == module_name:
-            return _ParticleSimulateCommand
-        raise
+    return importlib.import_module(COMMANDS[name][0])
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:

@@ -30,6 +30,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import stats
+
+from axialmix._csv import DataError, read_table
 
 __all__ = ["AnovaSource", "AnovaTable", "anova", "is_balanced", "read_study_table"]
 
@@ -171,8 +174,6 @@ def read_study_table(path: str | Path, columns: Sequence[str]) -> dict[str, list
     **Raises:** :class:`axialmix._csv.DataError` (one line, file and row) for a missing
     column, a ragged row, an empty cell or an unreadable file.
     """
-    from axialmix._csv import DataError, read_table
-
     table = read_table(path, header=True)
     found = [table.column(name) for name in columns]
     out: dict[str, list[str]] = {name: [] for name in columns}
@@ -251,7 +252,6 @@ def anova(
     factor with a single level, or a model that leaves no degrees of freedom for error.
     """
     import pandas as pd
-    from scipy import stats
 
     factors = tuple(factors)
     numeric_set = set(numeric)
