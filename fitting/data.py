@@ -16,11 +16,20 @@ Format accepted:
   A unit may follow the name in brackets or parentheses, or after an underscore
   (``time_min``). Without a header, the first column is time and the second the value.
 * Time units recognised: s, ms, min, h (and their spellings). Times are kept in the file's
-  unit; ``Curve.time_unit`` records it, and E is then in 1/(that unit).
+  unit; ``Curve.time_unit`` records it, and E is then in 1/(that unit). The value column's
+  unit, when the header gives one (``c [g/L]``), is kept as ``Curve.value_unit``.
+* Decimal commas (``0,25`` in a file whose cells are separated by ``;``, tabs or spaces) are
+  detected by default (``decimal="auto"``), or forced with ``decimal=","``.
+* Real data are not bad input. Values slightly below zero, detector noise around a
+  subtracted baseline, are kept: down to ``-NEGATIVE_FRACTION`` (5 %) of the peak. A value
+  further below zero is not noise (a wrong column, a sign error, a baseline subtracted
+  twice) and is refused with its row. Sparse, non-uniform sampling is fine, and a tail cut
+  before the curve has decayed only gives a :class:`DataWarning`.
 
-Normalisation uses :func:`axialmix.rtd.normalise`, i.e. the trapezoid rule on the sampled
-grid (``E = c / ∫ c dt``); a curve cut off before its tail has decayed is therefore
-normalised to the observed part only, which is why such curves produce a warning.
+Fitting uses the raw values (``normalise=False``) with the measurement model of
+:mod:`fitting.measurement`, whose amplitude absorbs the tracer amount: dividing the samples by
+their own trapezoid area (``normalise=True``, :func:`axialmix.rtd.normalise`) biases E whenever
+sampling is sparse or the tail is cut, so it is only for looking at curves and their moments.
 """
 
 from __future__ import annotations
@@ -36,13 +45,18 @@ import numpy as np
 
 from axialmix._csv import Column, DataError, Table, read_table
 
-__all__ = ["TIME_UNIT_SECONDS", "Curve", "DataError", "DataWarning", "as_curve", "input_files",
-           "read_many", "read_rtd_csv", "seconds_per"]
+__all__ = ["NEGATIVE_FRACTION", "TIME_UNIT_SECONDS", "Curve", "DataError", "DataWarning",
+           "as_curve", "input_files", "read_inlet_csv", "read_many", "read_rtd_csv",
+           "seconds_per"]
 
 #: Fraction of the peak that the last sample may keep before the curve counts as "never
 #: returned to baseline": a tail above 5 % of the peak leaves a visible part of the area
 #: (and much of the variance) unmeasured.
 TAIL_FRACTION = 0.05
+#: Values down to this fraction of the peak below zero are detector noise around a subtracted
+#: baseline and are kept (Gaussian noise of 1 % of the peak reaches -5 % about once in three
+#: million samples, of 1.5 % once in 2,000); anything lower is refused as not a tracer signal.
+NEGATIVE_FRACTION = 0.05
 
 _TIME_NAMES = {"t", "time", "times", "tempo", "zeit", "elapsed", "elapsed_time", "sample_time"}
 _VALUE_NAMES = {
@@ -90,6 +104,10 @@ class Curve:
     - `time_unit`: unit of `time` as read from the header (``"s"`` when none was given):
       ``"s"``, ``"ms"``, ``"min"`` or ``"h"``.
     - `source`: where the curve came from (file path), or ``None``.
+    - `value_unit`: unit of the raw values as the header gives it (``"g/L"``), or ``None``
+      when it gives none.
+    - `normalised`: whether `value` was divided by its own trapezoid area (then it is E in
+      1/`time_unit` and `value_unit` no longer applies).
     """
 
     name: str
@@ -97,6 +115,8 @@ class Curve:
     value: np.ndarray
     time_unit: str = "s"
     source: str | None = None
+    value_unit: str | None = None
+    normalised: bool = False
 
     def __post_init__(self) -> None:
         time = np.array(self.time, dtype=float)
@@ -182,7 +202,7 @@ def read_rtd_csv(
     min_points: int = 5,
     on_truncated: str = "warn",
     name: str | None = None,
-    decimal: str = ".",
+    decimal: str = "auto",
 ) -> Curve:
     """Read one residence-time curve from a CSV file, validate it and normalise it to E(t).
 
@@ -197,13 +217,16 @@ def read_rtd_csv(
       file's value unit. After subtraction values may be slightly negative (noise); they are
       kept, so as not to bias the fit.
     - `normalise`: divide by the trapezoid area so the values are the exit-age density E in
-      1/(time unit). Set ``False`` to keep the raw signal.
+      1/(time unit), for looking at a curve and its moments. Fits use the raw signal
+      (``False``) with :func:`fitting.measurement.measured`: dividing by the area of the
+      samples biases E when sampling is sparse or the tail is cut.
     - `min_points`: fewest data rows accepted.
     - `on_truncated`: what to do when the last value is still above 5 % of the peak (the curve
       never returned to baseline, so area and moments are biased): ``'warn'`` (default,
       :class:`DataWarning`), ``'error'`` (:class:`DataError`) or ``'ignore'``.
     - `name`: the curve's label; by default the file name without extension.
-    - `decimal`: ``'.'`` (default), ``','`` or ``'auto'`` (see :func:`axialmix._csv.read_table`).
+    - `decimal`: ``'auto'`` (default: decimal commas detected), ``'.'`` or ``','`` (see
+      :func:`axialmix._csv.read_table`).
 
     **Returns:**
 
@@ -213,8 +236,9 @@ def read_rtd_csv(
 
     :class:`DataError` (a ``ValueError``) with one line ``"<file>, row <r>: <problem>"`` for a
     missing, binary or UTF-16 file, missing or extra columns, non-numeric, empty or NaN cells,
-    negative values or times, times not strictly increasing, too few points, an all-zero
-    curve, or values so small or large that normalising would underflow or overflow.
+    negative times, values more than ``NEGATIVE_FRACTION`` (5 %) of the peak below zero
+    (smaller dips are noise and are kept), times not strictly increasing, too few points, an
+    all-zero curve, or values so small or large that normalising would underflow or overflow.
     """
     path = Path(path)
     if on_truncated not in {"warn", "error", "ignore"}:
@@ -236,9 +260,16 @@ def read_rtd_csv(
     bad = _first(time < 0)
     if bad is not None:
         problems.append((bad, f"negative time {time[bad]:g}"))
-    bad = _first(value < 0)
+    peak_value = float(np.max(value)) if value.size else 0.0
+    bad = _first(value < -NEGATIVE_FRACTION * max(peak_value, 0.0))
     if bad is not None:
-        problems.append((bad, f"negative value {value[bad]:g}"))
+        if peak_value > 0:
+            depth = f"{100 * -value[bad] / peak_value:.3g} % of the peak {peak_value:.4g}"
+        else:
+            depth = "and no value above zero"
+        problems.append((bad, f"negative value {value[bad]:g} ({depth}; noise around a "
+                         f"baseline is accepted down to -{100 * NEGATIVE_FRACTION:g} % of the "
+                         "peak)"))
     bad = _first(np.diff(time) <= 0)
     if bad is not None:
         kind = "repeated" if time[bad + 1] == time[bad] else "not increasing"
@@ -274,7 +305,8 @@ def read_rtd_csv(
     if on_truncated != "ignore" and value[-1] > TAIL_FRACTION * peak:
         error = DataError(
             path, f"the curve never returns to baseline (last value {value[-1]:.3g} is "
-            f"{100 * value[-1] / peak:.0f} % of the peak); area and moments are underestimated",
+            f"{100 * value[-1] / peak:.0f} % of the peak); its own area and moments are "
+            "underestimated (a fit of the raw curve is not: the model supplies the tail)",
             int(rows[-1]))
         if on_truncated == "error":
             raise error
@@ -291,7 +323,43 @@ def read_rtd_csv(
         value=value,
         time_unit=time_unit,
         source=str(path),
+        value_unit=None if normalise else value_col.unit,
+        normalised=bool(normalise),
     )
+
+
+def read_inlet_csv(
+    path: str | Path,
+    *,
+    time_unit: str | None = None,
+    time_column: str | int | None = None,
+    value_column: str | int | None = None,
+    decimal: str = "auto",
+) -> Curve:
+    """Read a measured inlet signal (the injected tracer pulse) with the curve reader.
+
+    The file is read and checked like a residence-time curve (:func:`read_rtd_csv`, raw
+    values, noise down to -5 % of the peak kept); an inlet need not return to zero within
+    the file. Its area is left as measured: :class:`fitting.measurement.Inlet` normalises it.
+
+    **Arguments:**
+
+    - `path`: the CSV file (time and inlet signal, any value unit).
+    - `time_unit`: convert the times to this unit (the outlet curve's), or ``None`` to keep
+      the file's.
+    - `time_column`, `value_column`, `decimal`: as in :func:`read_rtd_csv`.
+
+    **Returns:** a :class:`Curve` of the inlet signal (at least two samples).
+
+    **Raises:** :class:`DataError` naming the file and row, as :func:`read_rtd_csv`.
+    """
+    curve = read_rtd_csv(path, time_column=time_column, value_column=value_column,
+                         normalise=False, min_points=2, on_truncated="ignore", decimal=decimal)
+    if time_unit is not None and time_unit != curve.time_unit:
+        factor = seconds_per(curve.time_unit) / seconds_per(time_unit)
+        curve = Curve(name=curve.name, time=curve.time * factor, value=curve.value,
+                      time_unit=time_unit, source=curve.source, value_unit=curve.value_unit)
+    return curve
 
 
 def input_files(inputs: Iterable[str | Path], pattern: str = "*.csv") -> list[Path]:

@@ -16,6 +16,7 @@ __all__ = [
     "sherritt_dispersion",
     "sherritt_peclet",
     "tau_from_physical",
+    "transport_from_dimensionless",
 ]
 
 # From the rational start below (within 5 % of the root) Newton reaches round-off in 4 steps
@@ -189,3 +190,30 @@ def tau_from_physical(velocity: ArrayLike, length: ArrayLike) -> jax.Array:
     require_positive("velocity", velocity)
     require_positive("length", length)
     return jnp.asarray(length, float) / jnp.asarray(velocity, float)
+
+
+def transport_from_dimensionless(
+    tau: ArrayLike, peclet: ArrayLike, length: ArrayLike
+) -> tuple[jax.Array, jax.Array]:
+    """Return the velocity and axial dispersion ``(v, D_z)`` behind ``tau`` and ``Pe``.
+
+    The inverse of :func:`tau_from_physical` and :func:`peclet_from_physical`:
+    ``v = L / tau`` and ``D_z = v L / Pe = L² / (tau Pe)`` (MODELS.md section 2). For the
+    open–open model too, ``tau`` is ``L / v`` (not its mean residence time).
+
+    **Arguments:**
+
+    - `tau`: space time ``L / v`` (time unit, positive).
+    - `peclet`: Peclet number (dimensionless, positive).
+    - `length`: mixer length (length unit, positive).
+
+    **Returns:**
+
+    ``(velocity, dispersion)`` in length unit / time unit and length unit² / time unit.
+    """
+    require_positive("tau", tau)
+    require_positive("peclet", peclet)
+    require_positive("length", length)
+    tau, length = jnp.asarray(tau, float), jnp.asarray(length, float)
+    velocity = length / tau
+    return velocity, velocity * length / jnp.asarray(peclet, float)

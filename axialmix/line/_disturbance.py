@@ -250,10 +250,16 @@ def response_at(evaluator, disturbance: Disturbance, times: Array, *, uniform_tr
     The outlet deviation, the shape of `times`.
     """
     times = jnp.asarray(times, float)
-    lags = times[..., None] - disturbance.step_times
-    total = jnp.sum(disturbance.step_sizes * evaluator.cumulative(lags), axis=-1)
-    pulse_lags = times[..., None] - disturbance.pulse_times
-    total = total + jnp.sum(disturbance.pulse_amounts * evaluator.exit_age(pulse_lags), axis=-1)
+    total = jnp.zeros(times.shape)
+    # Empty step or pulse lists are skipped (static shapes): a network evaluates its curves by
+    # propagating over the sorted lags and has nothing to propagate over an empty list.
+    if disturbance.step_times.shape[0]:
+        lags = times[..., None] - disturbance.step_times
+        total = total + jnp.sum(disturbance.step_sizes * evaluator.cumulative(lags), axis=-1)
+    if disturbance.pulse_times.shape[0]:
+        pulse_lags = times[..., None] - disturbance.pulse_times
+        total = total + jnp.sum(disturbance.pulse_amounts * evaluator.exit_age(pulse_lags),
+                                axis=-1)
     flat = times.reshape(-1)
     for index, trace in enumerate(disturbance.traces):
         if index in uniform_traces:

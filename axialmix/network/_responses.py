@@ -230,7 +230,10 @@ def _first_order_hold_response(
         .at[n, n + 1].set(1.0)
     )
     intervals = jnp.diff(times)
-    slopes = jnp.diff(signal) / intervals
+    # A zero-length interval (a repeated traced time) carries no slope; dividing by it would
+    # give NaN and poison every later state.
+    spread = intervals > 0
+    slopes = jnp.where(spread, jnp.diff(signal) / jnp.where(spread, intervals, 1.0), 0.0)
 
     def transition(h):
         return expm(augmented * h)[:n]
