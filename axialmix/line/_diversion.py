@@ -5,11 +5,19 @@ when it returns; the diverted amount is the flow integrated over that window. Wi
 excursions the window runs from the first exit to the last return (everything in between is
 diverted, which is what a diverter valve does).
 
-The uncertainty of a fitted RTD enters by sampling: parameter vectors are drawn from the
-fit's (normal or log-normal) distribution, each gives a window, and the conservative window
-runs from a low quantile of the starts to a high quantile of the stops (a Bonferroni split of
-the allowed miss rate between the two ends), so that it contains the window of the true RTD
-with at least the stated probability under that distribution.
+The uncertainty of a fitted RTD enters by sampling the fit's (normal or log-normal)
+parameter distribution. Two conservative windows are offered:
+
+* ``method="region"`` (default): the earliest start and the latest stop over parameter
+  vectors filling the ``coverage`` confidence region of that distribution (the ellipsoid
+  ``(p - p̂)ᵀ C⁻¹ (p - p̂) <= chi²_k(coverage)``, sampled on its surface and inside). Whenever
+  the true parameters lie in the region the true window lies inside, so it is covered with
+  at least the region's probability, whatever the shape of the map from parameters to window.
+* ``method="quantile"``: from a low quantile of the sampled starts to a high quantile of the
+  sampled stops (the miss rate split between the two ends). Tighter, and close to the stated
+  coverage when the window ends move monotonically with the parameters, but not guaranteed:
+  when both ends move together the two misses exclude each other and the coverage is just the
+  nominal one, below it when the fit's covariance is itself too small.
 """
 
 from __future__ import annotations
@@ -37,7 +45,7 @@ __all__ = [
     "sample_units",
 ]
 
-_BISECTIONS = 60
+_ROOT_STEPS = 24
 
 
 class DiversionWindow(eqx.Module):
@@ -75,18 +83,32 @@ def _amount(flow, start: Array, stop: Array) -> Array:
     return jnp.asarray(flow, float) * (stop - start)
 
 
-def _bisect(excess, low: Array, high: Array) -> Array:
-    """A sign change of `excess` in [low, high], where excess(low) and excess(high) differ."""
-    low_sign = excess(low) > 0
+def _crossing(excess, low: Array, high: Array) -> Array:
+    """The sign change of `excess` in [low, high] (signs differ at the ends), to round-off.
 
-    def body(_, bracket):
-        a, b = bracket
-        middle = 0.5 * (a + b)
-        same = (excess(middle) > 0) == low_sign
-        return jnp.where(same, middle, a), jnp.where(same, b, middle)
+    Illinois' regula falsi: the bracket is kept, and an end that stays twice has its value
+    halved, so convergence is superlinear (about 1e-15 of the bracket after a dozen steps
+    for a smooth excess; a fixed number of steps keeps it traceable and vmappable).
+    """
+    f_low, f_high = excess(low), excess(high)
 
-    a, b = jax.lax.fori_loop(0, _BISECTIONS, body, (low, high))
-    return 0.5 * (a + b)
+    def body(_, state):
+        a, b, fa, fb, side = state
+        guess = jnp.clip(b - fb * (b - a) / jnp.where(fb != fa, fb - fa, 1.0), a, b)
+        guess = jnp.where(jnp.isfinite(guess) & (fb != fa), guess, 0.5 * (a + b))
+        fg = excess(guess)
+        same_as_a = (fg > 0) == (fa > 0)
+        # Replace the end on the guess's side; halve the other end's value if it stays twice.
+        new_a = jnp.where(same_as_a, guess, a)
+        new_b = jnp.where(same_as_a, b, guess)
+        new_fa = jnp.where(same_as_a, fg, jnp.where(side == -1, fa / 2, fa))
+        new_fb = jnp.where(same_as_a, jnp.where(side == 1, fb / 2, fb), fg)
+        return new_a, new_b, new_fa, new_fb, jnp.where(same_as_a, 1, -1)
+
+    a, b, fa, fb, _ = jax.lax.fori_loop(
+        0, _ROOT_STEPS, body, (low, high, f_low, f_high, jnp.asarray(0))
+    )
+    return jnp.where(jnp.abs(fa) < jnp.abs(fb), a, b)
 
 
 def _window(evaluator, disturbance, times, target, lower, upper, flow):
@@ -105,12 +127,12 @@ def _window(evaluator, disturbance, times, target, lower, upper, flow):
     start = jnp.where(
         first == 0,
         times[0],
-        _bisect(excess_at, times[jnp.maximum(first - 1, 0)], times[first]),
+        _crossing(excess_at, times[jnp.maximum(first - 1, 0)], times[first]),
     )
     stop = jnp.where(
         last == last_index,
         jnp.inf,
-        _bisect(excess_at, times[last], times[jnp.minimum(last + 1, last_index)]),
+        _crossing(excess_at, times[last], times[jnp.minimum(last + 1, last_index)]),
     )
     amount = jnp.where(stop == jnp.inf, jnp.inf, _amount(flow, start, jnp.where(
         stop == jnp.inf, start, stop)))
@@ -165,7 +187,7 @@ def diversion_window(
 
     The outlet content ``target + E ⊗ δu`` (:func:`outlet_response`) is scanned on `times`;
     the first exit from ``[lower, upper]`` and the last return are then located exactly by
-    bisection on the model between the neighbouring times (to 1e-18 of the spacing).
+    root finding on the model between the neighbouring times (to round-off).
 
     **Arguments:**
 
@@ -198,6 +220,50 @@ def diversion_window(
 
 
 # ------------------------------------------------------------------ uncertainty
+def _distribution(values, covariance, scale):
+    values = jnp.atleast_1d(jnp.asarray(values, float))
+    covariance = jnp.atleast_2d(jnp.asarray(covariance, float))
+    require_finite("values", values)
+    require_finite("covariance", covariance)
+    p = values.shape[0]
+    if values.ndim != 1 or covariance.shape != (p, p):
+        raise ValueError(f"covariance must have shape ({p}, {p}), got {covariance.shape}.")
+    if scale not in ("linear", "log"):
+        raise ValueError(f"scale must be 'linear' or 'log', got {scale!r}.")
+    if scale == "log":
+        require_positive("values", values)
+    eigenvalues, vectors = np.linalg.eigh(np.asarray(covariance))
+    if eigenvalues.min() < -1e-10 * max(eigenvalues.max(), 1e-300):
+        raise ValueError("covariance must be positive semi-definite.")
+    root = jnp.asarray(vectors * np.sqrt(np.clip(eigenvalues, 0.0, None)))
+    centre = jnp.log(values) if scale == "log" else values
+    return centre, root
+
+
+def _draw(values, covariance, samples, seed, scale, region):
+    """Parameter vectors: normal draws, or (region) points filling the confidence ellipsoid."""
+    if not isinstance(samples, int) or samples < 1:
+        raise ValueError(f"samples must be a positive integer, got {samples!r}.")
+    centre, root = _distribution(values, covariance, scale)
+    p = centre.shape[0]
+    key_direction, key_radius = jax.random.split(jax.random.PRNGKey(seed))
+    normal = jax.random.normal(key_direction, (samples, p))
+    if region is not None:
+        # Half of the points on the surface of the region (radius sqrt(chi²_p(region)) in
+        # whitened coordinates, where the extremes of a monotone map lie), half uniformly
+        # inside it, and the centre.
+        from scipy.stats import chi2
+
+        radius = float(np.sqrt(chi2.ppf(region, p)))
+        directions = normal / jnp.linalg.norm(normal, axis=1, keepdims=True)
+        uniform = jax.random.uniform(key_radius, (samples,))
+        inside = jnp.arange(samples) % 2 == 1
+        radii = radius * jnp.where(inside, uniform ** (1.0 / p), 1.0)
+        normal = (directions * radii[:, None]).at[0].set(0.0)
+    drawn = centre + normal @ root.T
+    return jnp.exp(drawn) if scale == "log" else drawn
+
+
 def sample_units(
     unit_factory: Callable[[Array], Unit | Line],
     values: ArrayLike,
@@ -230,27 +296,7 @@ def sample_units(
     ``(units, parameters)``: a batched Unit or Line whose leaves carry a leading axis of
     length `samples` (use it with ``jax.vmap``), and the drawn parameters ``(samples, p)``.
     """
-    values = jnp.atleast_1d(jnp.asarray(values, float))
-    covariance = jnp.atleast_2d(jnp.asarray(covariance, float))
-    require_finite("values", values)
-    require_finite("covariance", covariance)
-    p = values.shape[0]
-    if values.ndim != 1 or covariance.shape != (p, p):
-        raise ValueError(f"covariance must have shape ({p}, {p}), got {covariance.shape}.")
-    if scale not in ("linear", "log"):
-        raise ValueError(f"scale must be 'linear' or 'log', got {scale!r}.")
-    if not isinstance(samples, int) or samples < 1:
-        raise ValueError(f"samples must be a positive integer, got {samples!r}.")
-    if scale == "log":
-        require_positive("values", values)
-    eigenvalues, vectors = np.linalg.eigh(np.asarray(covariance))
-    if eigenvalues.min() < -1e-10 * max(eigenvalues.max(), 1e-300):
-        raise ValueError("covariance must be positive semi-definite.")
-    root = vectors * np.sqrt(np.clip(eigenvalues, 0.0, None))
-    normal = jax.random.normal(jax.random.PRNGKey(seed), (samples, p))
-    centre = jnp.log(values) if scale == "log" else values
-    drawn = centre + normal @ jnp.asarray(root).T
-    parameters = jnp.exp(drawn) if scale == "log" else drawn
+    parameters = _draw(values, covariance, samples, seed, scale, None)
     return jax.vmap(unit_factory)(parameters), parameters
 
 
@@ -260,15 +306,16 @@ class ConservativeDiversion(eqx.Module):
     **Arguments:**
 
     - `nominal`: the :class:`DiversionWindow` at the fitted values.
-    - `start`, `stop`, `diverted_amount`: the conservative window (time unit, amount unit):
-      it contains the true window with probability at least `coverage` under the sampled
-      distribution (NaN start and stop when too few samples divert to call for it).
+    - `start`, `stop`, `diverted_amount`: the conservative window (time unit, amount unit),
+      NaN start and stop (amount 0) when no sample calls for diversion.
     - `coverage`: the stated probability.
-    - `sample_starts`, `sample_stops`: the windows of the samples (``+inf``/``-inf`` for
-      samples that do not divert, NaN for samples whose prediction is not finite).
+    - `method`: ``"region"`` or ``"quantile"`` (see :mod:`axialmix.line`'s diversion notes
+      and :func:`conservative_diversion_window`).
+    - `sample_parameters`: the parameter vectors used ``(samples, p)``.
+    - `sample_starts`, `sample_stops`: their windows (``+inf``/``-inf`` for vectors that do
+      not divert, NaN for vectors whose prediction is not finite).
     - `diverting_fraction`: share of the valid samples that divert.
     - `valid_samples`: samples with a finite prediction (the others are left out).
-    - `method`: ``"sampling"`` (Monte Carlo over the parameter distribution).
     - `time_unit`, `amount_unit`: units.
     """
 
@@ -277,25 +324,27 @@ class ConservativeDiversion(eqx.Module):
     stop: Array
     diverted_amount: Array
     coverage: float = eqx.field(static=True)
+    method: str = eqx.field(static=True)
+    sample_parameters: Array
     sample_starts: Array
     sample_stops: Array
     diverting_fraction: Array
     valid_samples: int = eqx.field(static=True)
-    method: str = eqx.field(static=True, default="sampling")
     time_unit: str = eqx.field(static=True, default="s")
     amount_unit: str = eqx.field(static=True, default="")
 
 
 @eqx.filter_jit
-def _sample_windows(units, disturbance, times, target, lower, upper, flow, horizon):
-    def one(unit):
-        evaluator = as_evaluator(unit, horizon)
+def _sample_windows(unit_factory, parameters, disturbance, times, target, lower, upper, flow,
+                    horizon):
+    def one(vector):
+        evaluator = as_evaluator(unit_factory(vector), horizon)
         start, stop, _, diverts, outlet = _window(
             evaluator, disturbance, times, target, lower, upper, flow
         )
         return start, stop, diverts, jnp.all(jnp.isfinite(outlet))
 
-    return jax.vmap(one)(units)
+    return jax.vmap(one)(parameters)
 
 
 def conservative_diversion_window(
@@ -310,31 +359,36 @@ def conservative_diversion_window(
     upper: ArrayLike,
     flow: ArrayLike | FlowSchedule = 1.0,
     coverage: float = 0.95,
+    method: str = "region",
     samples: int = 1000,
     seed: int = 0,
     scale: str = "linear",
     amount_unit: str = "",
 ) -> ConservativeDiversion:
-    """A diversion window that covers the true one with a stated probability (by sampling).
+    """A diversion window that covers the true one with a stated probability, by sampling.
 
-    Parameter vectors are drawn as in :func:`sample_units`, each gives a window
-    (:func:`diversion_window`, vmapped), and the conservative window runs from the
-    ``(1 - coverage)/2`` quantile of the starts to the ``(1 + coverage)/2`` quantile of the
-    stops. By the union bound it contains the window of a parameter vector drawn from the
-    same distribution with probability at least `coverage`; samples that do not divert count
-    as windows that start at +inf and stop at -inf. Sampling (rather than a first-order
-    propagation through JAX derivatives) is used because a window need not exist for every
-    parameter vector and its ends are not smooth functions of the parameters where an
-    excursion appears or merges with another.
+    ``method="region"`` (default) fills the `coverage` confidence region of the parameter
+    distribution (normal, or log-normal with ``scale="log"``) with `samples` vectors, half on
+    its surface, and returns the earliest start and the latest stop among them: it contains
+    the true window whenever the true parameters lie in the region, i.e. with probability at
+    least `coverage` under the fit's distribution. ``method="quantile"`` draws from the
+    distribution itself and returns the ``(1 - coverage)/2`` quantile of the starts and the
+    ``(1 + coverage)/2`` quantile of the stops: tighter, about the stated coverage when the
+    ends move monotonically with the parameters, not guaranteed. Vectors that do not divert
+    count as windows from +inf to -inf. Sampling rather than first-order propagation through
+    JAX derivatives is used because a window need not exist for every parameter vector and
+    its ends are not smooth where an excursion appears or merges with another.
 
     **Arguments:**
 
-    - `unit_factory`: function of a parameter vector returning a :class:`Unit` or :class:`Line`.
+    - `unit_factory`: function of a parameter vector returning a :class:`Unit` or :class:`Line`
+      (traceable; it is vmapped).
     - `values`, `covariance`: the fit's parameter vector and covariance (see `scale`).
     - `disturbance`, `times`, `target`, `lower`, `upper`, `flow`: as in
       :func:`diversion_window`.
     - `coverage`: the probability to cover (between 0 and 1).
-    - `samples`: number of parameter draws.
+    - `method`: ``"region"`` or ``"quantile"``.
+    - `samples`: number of parameter vectors.
     - `seed`: random seed.
     - `scale`: ``"linear"`` or ``"log"`` (see :func:`sample_units`).
     - `amount_unit`: unit of the diverted amount.
@@ -345,30 +399,33 @@ def conservative_diversion_window(
     """
     if not 0.0 < coverage < 1.0:
         raise ValueError(f"coverage must lie between 0 and 1, got {coverage!r}.")
-    nominal_rtd = unit_factory(jnp.atleast_1d(jnp.asarray(values, float)))
+    if method not in ("region", "quantile"):
+        raise ValueError(f"method must be 'region' or 'quantile', got {method!r}.")
     nominal = diversion_window(
-        nominal_rtd, disturbance, times, target=target, lower=lower, upper=upper, flow=flow,
-        amount_unit=amount_unit,
+        unit_factory(jnp.atleast_1d(jnp.asarray(values, float))), disturbance, times,
+        target=target, lower=lower, upper=upper, flow=flow, amount_unit=amount_unit,
     )
-    units, _ = sample_units(unit_factory, values, covariance, samples, seed=seed, scale=scale)
+    parameters = _draw(values, covariance, samples, seed, scale,
+                       coverage if method == "region" else None)
     times = jnp.asarray(times, float)
     target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
     starts, stops, diverts, finite = _sample_windows(
-        units, disturbance, times, target, lower, upper, flow, lag_horizon(disturbance, times)
+        unit_factory, parameters, disturbance, times, target, lower, upper, flow,
+        lag_horizon(disturbance, times),
     )
-    starts = jnp.where(diverts, starts, jnp.inf)
-    stops = jnp.where(diverts, stops, -jnp.inf)
-    starts = jnp.where(finite, starts, jnp.nan)
-    stops = jnp.where(finite, stops, jnp.nan)
+    starts = jnp.where(finite, jnp.where(diverts, starts, jnp.inf), jnp.nan)
+    stops = jnp.where(finite, jnp.where(diverts, stops, -jnp.inf), jnp.nan)
     valid = np.asarray(finite)
-    valid_count = int(valid.sum())
-    if valid_count == 0:
+    if not valid.any():
         raise ValueError("no sampled parameter vector gives a finite prediction.")
-    miss = (1.0 - coverage) / 2.0
     kept_starts = np.asarray(starts)[valid]
     kept_stops = np.asarray(stops)[valid]
-    start = np.quantile(kept_starts, miss, method="lower")
-    stop = np.quantile(kept_stops, 1.0 - miss, method="higher")
+    if method == "region":
+        start, stop = kept_starts.min(), kept_stops.max()
+    else:
+        miss = (1.0 - coverage) / 2.0
+        start = np.quantile(kept_starts, miss, method="lower")
+        stop = np.quantile(kept_stops, 1.0 - miss, method="higher")
     if not np.isfinite(start) or not stop >= start:
         start = stop = np.nan
         amount = jnp.asarray(0.0)
@@ -382,11 +439,12 @@ def conservative_diversion_window(
         jnp.asarray(stop),
         amount,
         float(coverage),
+        method,
+        parameters,
         starts,
         stops,
         jnp.asarray(np.asarray(diverts)[valid].mean()),
-        valid_count,
-        "sampling",
+        int(valid.sum()),
         nominal.time_unit,
         amount_unit,
     )
