@@ -1,8 +1,12 @@
-"""Diagnostics of fits: which parameter combinations a curve determines, and profiles.
+"""Diagnostics of fits: lack of fit, identifiable combinations, profiles, model comparison.
 
+:func:`lack_of_fit` tests a fit's residuals for systematic structure (the verdict every
+:class:`~fitting.result.FitResult` carries, with an optional known noise level);
 :func:`identifiability` analyses the curvature of a fit; :func:`profile_likelihood` re-fits
 with one parameter held on a grid (one vmapped, compiled call through :mod:`fitting.solve`),
-checking the linearised intervals of :mod:`fitting.uncertainty`.
+checking the linearised intervals of :mod:`fitting.uncertainty`; :func:`compare_models`
+ranks fits of several models to one curve by AICc and BIC together with their lack-of-fit
+verdicts, and says when the data cannot tell them apart.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import numpy as np
 
 from axialmix.network import four_compartment_chain_transport
 from fitting.fit import prepare
+from fitting.residuals import LACK_OF_FIT_LEVEL, LackOfFit, lack_of_fit_test
 from fitting.result import FitResult
 from fitting.solve import (
     FIRST_ORDER_CONVERGED,
@@ -28,11 +33,16 @@ from fitting.solve import (
 from fitting.uncertainty import LOG_INTERVAL_LIMIT, SINGULAR_RATIO, t_quantile
 
 __all__ = [
+    "INDISTINGUISHABLE_AICC",
     "MAX_LOG_HALF_WIDTH",
+    "STRONG_AICC",
     "Identifiability",
+    "ModelComparison",
     "Profile",
+    "compare_models",
     "equivalent_dispersion",
     "identifiability",
+    "lack_of_fit",
     "profile_likelihood",
 ]
 
@@ -319,6 +329,266 @@ def regions(values: np.ndarray, sse: np.ndarray,
         regions.append((low, high))
         k += 1
     return tuple(regions)
+
+
+# --- lack of fit ---------------------------------------------------------------------------------
+
+
+def lack_of_fit(result: FitResult, noise: float | None = None,
+                level: float = LACK_OF_FIT_LEVEL) -> LackOfFit:
+    """Test a fit's residuals for systematic structure: the model does not describe the curve.
+
+    The runs test on the signs and the lag-1 autocorrelation of the residuals standardised
+    by the fit's error model (``sqrt(w) r``), and, when the noise level is known, the scaled
+    residual sum of squares against its expected value (``χ²`` with the fit's degrees of
+    freedom); see :func:`fitting.residuals.lack_of_fit_test`. Without `noise` and at the
+    default level this is ``result.lack_of_fit``.
+
+    **Arguments:**
+
+    - `result`: a :class:`~fitting.result.FitResult`.
+    - `noise`: the known standard deviation of ``sqrt(w) r``: 1 when the fit's weights are
+      ``1/σ_i²`` with known ``σ_i`` (the data's unit), or the relative noise level (e.g.
+      0.02) for a relative-error fit (weights ``1/model²``). ``None``: estimated from the
+      residuals, no scaled-SSE test.
+    - `level`: significance level of each test.
+
+    **Returns:** a :class:`~fitting.residuals.LackOfFit`.
+    """
+    if noise is None and level == LACK_OF_FIT_LEVEL:
+        return result.lack_of_fit
+    weights = np.asarray(result.weights, dtype=float)
+    if result.loss_name == "mae":
+        weights = weights**2
+    peak = float(np.max(np.abs(result.observed[weights > 0]), initial=0.0))
+    return lack_of_fit_test(result.residuals, weights, dof=result.dof, noise=noise, peak=peak,
+                            level=level)
+
+
+# --- model comparison ----------------------------------------------------------------------------
+
+#: Models whose AICc differ by less than this are not told apart by the data (Burnham and
+#: Anderson 2002, section 2.6: both have substantial support).
+INDISTINGUISHABLE_AICC = 2.0
+#: A difference of AICc above this leaves the other model essentially no support (ibid.).
+STRONG_AICC = 10.0
+
+
+def _criteria(result: FitResult) -> tuple[float, int, float, float]:
+    """``(log-likelihood, K, AICc, BIC)`` of a least-squares fit, Gaussian errors.
+
+    The weights are taken as inverse variances up to one common factor, estimated by maximum
+    likelihood: ``-2 ln L = n ln(2π Σwr²/n) + n - Σ ln w_i`` over the points with ``w > 0``.
+    The ``Σ ln w`` term matters when the weights depend on the model (relative errors); for
+    weights shared by all models it is a common constant. ``K`` counts the free parameters and
+    the variance factor; ``AICc = -2 ln L + 2K + 2K(K+1)/(n-K-1)`` (``nan`` for ``n <= K+1``),
+    ``BIC = -2 ln L + K ln n``.
+    """
+    weights = np.asarray(result.weights, dtype=float)
+    used = weights > 0
+    n = int(np.count_nonzero(used))
+    sse = float(np.sum(weights[used] * np.asarray(result.residuals)[used] ** 2))
+    k = len(result.free_names) + 1
+    if n == 0 or not (math.isfinite(sse) and sse > 0):
+        return math.nan, k, math.nan, math.nan
+    minus_two_log_l = (n * math.log(2 * math.pi * sse / n) + n
+                       - float(np.sum(np.log(weights[used]))))
+    aicc = (minus_two_log_l + 2 * k + 2 * k * (k + 1) / (n - k - 1)) if n > k + 1 else math.nan
+    bic = minus_two_log_l + k * math.log(n)
+    return -0.5 * minus_two_log_l, k, aicc, bic
+
+
+@dataclass(frozen=True)
+class ModelComparison:
+    """Fits of several models to one curve, ranked by AICc, with their lack-of-fit verdicts.
+
+    - `results`: the fits, in the order given; `names`: their model names.
+    - `n_parameters`: ``K`` of each (free parameters plus the variance factor).
+    - `log_likelihood`, `aicc`, `bic`: Gaussian criteria (see :func:`compare_models`);
+      lower AICc and BIC are better, only differences between models mean anything.
+    - `delta_aicc`: AICc minus the lowest AICc of the compared fits (``nan`` for fits not
+      compared); `akaike_weights`: ``exp(-Δ/2)`` normalised over the compared fits.
+    - `compared`: whether each fit has finite criteria (the others are not ranked). A fit
+      that did not converge is ranked all the same: its AICc is an upper bound (often it
+      drifts along a ridge where extra parameters are not determined, such as an exchange
+      zone on a curve without one), and the recommendation says so.
+    - `systematic`: each fit's lack-of-fit verdict.
+    - `best`: the recommended model (``None`` when no fit could be compared).
+    - `indistinguishable`: the other models the data cannot tell from `best`
+      (ΔAICc below :data:`INDISTINGUISHABLE_AICC`, same lack-of-fit verdict).
+    - `recommendation`: the conclusion in plain words with numbers.
+    """
+
+    results: tuple[FitResult, ...]
+    names: tuple[str, ...]
+    n_parameters: tuple[int, ...]
+    log_likelihood: tuple[float, ...]
+    aicc: tuple[float, ...]
+    bic: tuple[float, ...]
+    delta_aicc: tuple[float, ...]
+    akaike_weights: tuple[float, ...]
+    compared: tuple[bool, ...]
+    systematic: tuple[bool, ...]
+    best: str | None
+    indistinguishable: tuple[str, ...]
+    recommendation: str
+
+    def __str__(self) -> str:
+        return self.recommendation
+
+    def to_dict(self) -> dict:
+        """A JSON-ready record: one entry per model (criteria, verdict, parameters) and the
+        recommendation."""
+
+        def number(x):
+            return float(x) if x is not None and math.isfinite(x) else None
+
+        models = []
+        for i, result in enumerate(self.results):
+            models.append({
+                "model": self.names[i],
+                "parameters": {n: {"value": number(result.values[n]),
+                                   "stderr": number(result.stderr[n])
+                                   if result.stderr[n] is not None else None}
+                               for n in result.values},
+                "n_parameters": self.n_parameters[i],
+                "sse": number(result.sse),
+                "log_likelihood": number(self.log_likelihood[i]),
+                "aicc": number(self.aicc[i]),
+                "delta_aicc": number(self.delta_aicc[i]),
+                "akaike_weight": number(self.akaike_weights[i]),
+                "bic": number(self.bic[i]),
+                "converged": bool(result.converged),
+                "compared": bool(self.compared[i]),
+                "lack_of_fit": result.lack_of_fit.to_dict(),
+            })
+        return {"data": self.results[0].name, "models": models, "best": self.best,
+                "indistinguishable": list(self.indistinguishable),
+                "recommendation": self.recommendation}
+
+
+def _join(names: Sequence[str]) -> str:
+    names = list(names)
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def _recommend(names, k, aicc, compared, systematic,
+               converged) -> tuple[str | None, tuple, str]:
+    """The best model, the ones not told apart from it, and the recommendation in words."""
+    order = [int(i) for i in np.argsort(np.nan_to_num(aicc, nan=np.inf), kind="stable")
+             if compared[i]]
+    skipped = [names[i] for i in range(len(names)) if i not in order]
+    loose = [names[i] for i in order if not converged[i]]
+    note = ""
+    if loose:
+        verb = "did" if len(loose) == 1 else "do"
+        note += (f" ({_join(loose)} {verb} not converge: AICc is an upper bound there, and "
+                 "parameters without a bound are not determined by this curve.)")
+    if skipped:
+        note += f" ({_join(skipped)}: no finite loss, not compared.)"
+    if not order:
+        return None, (), "No fit has a finite loss; no model can be recommended." + note
+    described = [i for i in order if not systematic[i]]
+    flagged = [i for i in order if systematic[i]]
+    pool = described or order
+    best = pool[0]
+    gap = {i: aicc[i] - aicc[best] for i in pool}
+    close = [i for i in pool[1:] if gap[i] < INDISTINGUISHABLE_AICC]
+    if not described:
+        text = (f"No model describes this curve: every one leaves systematic residuals "
+                f"(lack of fit), so none of their intervals can be trusted. {names[best]} has "
+                "the lowest AICc")
+        if close:
+            text += (f", but the data cannot tell it from {_join(names[i] for i in close)} "
+                     f"(ΔAICc < {INDISTINGUISHABLE_AICC:g})")
+        text += "; try another model, a baseline or a dead time."
+        return names[best], tuple(names[i] for i in close), text + note
+    if close:
+        group = [best, *close]
+        simplest = min(group, key=lambda i: (k[i], aicc[i]))
+        gaps = ", ".join(f"{names[i]} {gap[i]:.2g}" for i in close)
+        text = (f"The data cannot tell {_join(names[i] for i in group)} apart: each describes "
+                f"the curve (no lack of fit) and their AICc differ by less than "
+                f"{INDISTINGUISHABLE_AICC:g} (ΔAICc: {gaps}). {names[best]} has the lowest "
+                f"AICc; the simplest, {names[simplest]} ({k[simplest] - 1} parameters), is "
+                "the safer choice unless other knowledge favours another.")
+    else:
+        text = f"{names[best]} is recommended: it describes the curve (no lack of fit)"
+        if len(pool) > 1:
+            second = pool[1]
+            strength = "clearly" if gap[second] >= STRONG_AICC else "but not decisively"
+            text += (f" and has the lowest AICc, {strength} (next {names[second]}, "
+                     f"ΔAICc = {gap[second]:.3g}, evidence ratio "
+                     f"{math.exp(min(0.5 * gap[second], 700.0)):.3g})")
+        elif len(order) > 1:
+            second = next(i for i in order if i != best)
+            difference = aicc[second] - aicc[best]
+            text += (f", the only one that does (next by AICc: {names[second]}, "
+                     f"ΔAICc = {difference:+.3g})")
+        text += "."
+    if flagged:
+        verb = "does" if len(flagged) == 1 else "do"
+        text += (f" {_join(names[i] for i in flagged)} {verb} not describe the curve "
+                 "(systematic residuals).")
+        lower = [names[i] for i in flagged if aicc[i] < aicc[best]]
+        if lower:
+            text += (f" {_join(lower)} {'has' if len(lower) == 1 else 'have'} a lower AICc, "
+                     "but a model with systematic residuals is not an explanation of the "
+                     "curve.")
+    return names[best], tuple(names[i] for i in close), text + note
+
+
+def compare_models(results: Sequence[FitResult]) -> ModelComparison:
+    """Rank fits of several models to the same curve by AICc, with their lack-of-fit verdicts.
+
+    The criteria are Gaussian likelihoods of the least-squares fits, with the fits' weights
+    as inverse variances up to a common factor estimated by maximum likelihood (so
+    relative-error fits, whose weights follow each model's own curve, are compared on one
+    footing): ``-2 ln L = n ln(2π Σwr²/n) + n - Σ ln w``, ``K`` = free parameters + 1,
+    ``AICc = -2 ln L + 2K + 2K(K+1)/(n-K-1)``, ``BIC = -2 ln L + K ln n``. (Fits on the
+    mean absolute error are scored by their ``Σ w r²`` all the same.)
+
+    The recommendation puts the lack-of-fit verdict first: among the models that describe
+    the curve (no systematic residuals) the lowest AICc wins; the data cannot tell models
+    apart when their AICc differ by less than :data:`INDISTINGUISHABLE_AICC` and they share
+    a verdict; when every model shows lack of fit, none is recommended as a description.
+
+    **Arguments:**
+
+    - `results`: at least two :class:`~fitting.result.FitResult` of one curve (same times and
+      values).
+
+    **Returns:** a :class:`ModelComparison`.
+    """
+    results = tuple(results)
+    if len(results) < 2:
+        raise ValueError(f"compare_models needs at least two fits, got {len(results)}")
+    first = results[0]
+    for other in results[1:]:
+        if not (np.array_equal(other.time, first.time)
+                and np.array_equal(other.observed, first.observed)):
+            raise ValueError("compare_models: every fit must be of the same curve (same times "
+                             f"and values); {other.model.name!r} differs from "
+                             f"{first.model.name!r}")
+    names = []
+    for result in results:
+        name, suffix = result.model.name, 2
+        while name in names:
+            name, suffix = f"{result.model.name} ({suffix})", suffix + 1
+        names.append(name)
+    criteria = [_criteria(r) for r in results]
+    log_l, k, aicc, bic = (tuple(column) for column in zip(*criteria, strict=True))
+    compared = tuple(bool(math.isfinite(a)) for a in aicc)
+    converged = tuple(bool(r.converged) for r in results)
+    systematic = tuple(bool(r.lack_of_fit.systematic) for r in results)
+    reference = min((a for a, c in zip(aicc, compared, strict=True) if c), default=math.nan)
+    delta = tuple(a - reference if c else math.nan for a, c in zip(aicc, compared, strict=True))
+    raw = [math.exp(-0.5 * d) if c else 0.0 for d, c in zip(delta, compared, strict=True)]
+    total = sum(raw)
+    weights = tuple(x / total if total > 0 else math.nan for x in raw)
+    best, close, text = _recommend(names, k, aicc, compared, systematic, converged)
+    return ModelComparison(results, tuple(names), k, log_l, aicc, bic, delta, weights,
+                           compared, systematic, best, close, text)
 
 
 def equivalent_dispersion(result: FitResult, length: float = 1.0) -> dict:

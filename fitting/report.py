@@ -24,12 +24,14 @@ import numpy as np
 
 from axialmix._files import write_atomic, write_csv, write_json
 from axialmix.analytic import peclet_from_variance_ratio as _peclet_from_variance_ratio
-from fitting.diagnostics import identifiability
+from fitting.diagnostics import ModelComparison, identifiability
 from fitting.gridsearch import GridResult
 from fitting.models import get_model
 from fitting.result import FitResult
 
 __all__ = [
+    "comparison_record",
+    "comparison_table",
     "fit_record",
     "fit_table",
     "identifiability_statements",
@@ -99,6 +101,10 @@ def identifiability_statements(result: FitResult) -> list[str]:
     ``±UNDETERMINED_RELATIVE_ERROR`` of the value; a pair is called confounded when its
     correlation exceeds ``STRONG_CORRELATION`` in magnitude. These are statements about the
     linearised (Gauss–Newton) uncertainty; a profile likelihood checks them more strictly.
+    They hold only for a model that describes the curve: the fit's lack-of-fit verdict
+    (:attr:`~fitting.result.FitResult.lack_of_fit`) comes with them, and when it finds
+    systematic residuals the summary says that the model does not describe the curve and
+    that its intervals understate the uncertainty, instead of calling parameters determined.
 
     **Arguments:**
 
@@ -141,12 +147,21 @@ def identifiability_statements(result: FitResult) -> list[str]:
             statements.append(f"Combinations (curvature eigen-analysis, log scale): "
                               f"{diagnosis.summary}.")
     statements.extend(result.model.facts(result.values, result.init_params))
+    verdict = result.lack_of_fit
+    if verdict.tested:
+        statements.append(verdict.statement)
     if undetermined:
         statements.append(
             f"Not determined by this curve: {', '.join(undetermined)}; fix or tie them "
             "(--fix, --tie) or add information to report them."
         )
-    else:
+    if verdict.systematic:
+        statements.append(
+            f"The {result.model.name} model does not describe this curve, so its parameters "
+            "are not determined by it: the standard errors and intervals above understate "
+            "the uncertainty."
+        )
+    elif not undetermined:
         limit = 100 * UNDETERMINED_RELATIVE_ERROR
         statements.append("All fitted parameters are determined by this curve "
                           f"(relative standard errors below {limit:.0f} %).")
@@ -206,6 +221,19 @@ def equivalent_dispersion(mean: float, variance: float,
 # --- tables and records -------------------------------------------------------------------------
 
 
+def _verdict(record: Mapping[str, Any] | None) -> str:
+    """A lack-of-fit record in a table cell: ``systematic (runs p 2e-06, r1 +0.71)``."""
+    if not record:
+        return "-"
+    if not record.get("tested", True):
+        return "not tested"
+    word = "SYSTEMATIC" if record["systematic"] else "none"
+    runs = (f"runs p {_number(record['runs_test_p'], 2)}" if record.get("runs", 2) > 1
+            else "one sign")
+    return f"{word} ({runs}, r1 {record['lag1_autocorrelation']:+.2f})"
+
+
+
 def fit_table(result: FitResult, grid: GridResult | None = None) -> str:
     """The parameter table of one fit, with the grid search beside it when given.
 
@@ -243,6 +271,8 @@ def fit_table(result: FitResult, grid: GridResult | None = None) -> str:
     rows.append(["converged", "yes" if result.converged else "no", "", ""]
                 + (["interrupted" if grid.interrupted else "complete"] if grid is not None
                    else []))
+    rows.append(["lack of fit", _verdict(result.lack_of_fit.to_dict()), "", ""]
+                + ([""] if grid is not None else []))
     title = (f"{result.name or 'curve'}: model {result.model.name}, {result.n_points} points, "
              f"times in {result.time_unit}")
     return title + "\n" + text_table(header, rows)
@@ -267,9 +297,9 @@ def fit_record(
     **Returns:** a JSON-ready dict with ``model``, ``data``, ``source``, ``parameters``
     (``{name: {value, stderr, ci95, vary, expr}}``), ``loss``, ``loss_name``, ``converged``,
     ``message``, ``n_evaluations``, ``wall_time``, ``correlation``, ``aic``, ``bic``,
-    ``time_unit``, ``identifiability`` (sentences), ``equivalent_adm`` (models with that
-    hook; units in its keys) and ``grid_search``
-    when one was run.
+    ``time_unit``, ``identifiability`` (sentences), ``lack_of_fit``
+    (:meth:`fitting.residuals.LackOfFit.to_dict`), ``equivalent_adm`` (models with that hook;
+    units in its keys) and ``grid_search`` when one was run.
     """
     base = result.to_dict()
     parameters = {
@@ -295,6 +325,7 @@ def fit_record(
         "bic": base["bic"],
         "correlation": base["correlation"],
         "identifiability": identifiability_statements(result),
+        "lack_of_fit": result.lack_of_fit.to_dict(),
     }
     equivalent = result.equivalent_adm(length_m)
     if equivalent is not None:
@@ -318,7 +349,7 @@ def summary_rows(records: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[
     header = ["data"]
     for name in names:
         header += [name, f"{name}_stderr"]
-    header += ["loss", "n_evaluations", "wall_time_s", "converged"]
+    header += ["loss", "n_evaluations", "wall_time_s", "converged", "systematic_misfit"]
     with_grid = any("grid_search" in r for r in records)
     if with_grid:
         header += ["grid_loss", "grid_n_evaluations"]
@@ -328,8 +359,9 @@ def summary_rows(records: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[
         for name in names:
             entry = record["parameters"].get(name, {})
             row += [entry.get("value"), entry.get("stderr")]
+        verdict = record.get("lack_of_fit") or {}
         row += [record["loss"], record["n_evaluations"], round(record["wall_time"], 4),
-                record["converged"]]
+                record["converged"], verdict.get("systematic")]
         if with_grid:
             grid = record.get("grid_search") or {}
             row += [grid.get("loss"), grid.get("n_evaluations")]
@@ -341,7 +373,7 @@ def summary_table(records: Sequence[Mapping[str, Any]]) -> str:
     """The readable summary table of several fits (value ± standard error per parameter)."""
     names = list(records[0]["parameters"]) if records else []
     with_grid = any("grid_search" in r for r in records)
-    header = ["data", *names, "loss", "evaluations", "time (s)", "converged"]
+    header = ["data", *names, "loss", "evaluations", "time (s)", "converged", "lack of fit"]
     if with_grid:
         header += ["grid loss", "grid evaluations"]
     rows = []
@@ -354,12 +386,69 @@ def summary_table(records: Sequence[Mapping[str, Any]]) -> str:
                        + ("" if error is None or not entry.get("vary", True) and
                           entry.get("expr") is None else f" +/- {error:.2g}"))
         row += [_number(record["loss"], 4), f"{record['n_evaluations']:,}",
-                f"{record['wall_time']:.3f}", "yes" if record["converged"] else "no"]
+                f"{record['wall_time']:.3f}", "yes" if record["converged"] else "no",
+                _verdict(record.get("lack_of_fit"))]
         if with_grid:
             grid = record.get("grid_search") or {}
             row += [_number(grid.get("loss"), 4), f"{grid.get('n_evaluations', 0):,}"]
         rows.append(row)
     return text_table(header, rows)
+
+
+# --- model comparison ---------------------------------------------------------------------------
+
+
+def comparison_table(comparison: ModelComparison) -> str:
+    """The table of a model comparison: parameters, SSE, AICc, BIC and lack of fit per model,
+    followed by the recommendation.
+
+    **Arguments:**
+
+    - `comparison`: from :func:`fitting.diagnostics.compare_models`.
+
+    **Returns:** the table and the recommendation as text.
+    """
+    header = ["model", "parameters (value +/- std. error)", "SSE", "K", "AICc", "dAICc",
+              "BIC", "lack of fit", "converged"]
+    rows = []
+    for i, result in enumerate(comparison.results):
+        cells = []
+        for name in result.values:
+            error = _finite(result.stderr.get(name))
+            cells.append(f"{name} {_number(result.values[name], 4)}"
+                         + ("" if error is None else f" +/- {error:.2g}"))
+        rows.append([
+            comparison.names[i], ", ".join(cells), _number(result.sse, 4),
+            str(comparison.n_parameters[i]), _number(comparison.aicc[i], 6),
+            _number(comparison.delta_aicc[i], 3), _number(comparison.bic[i], 6),
+            _verdict(result.lack_of_fit.to_dict()), "yes" if result.converged else "no",
+        ])
+    first = comparison.results[0]
+    title = (f"{first.name or 'curve'}: {len(comparison.results)} models, {first.n_points} "
+             f"points, times in {first.time_unit} (K = free parameters + 1 for the noise "
+             "level; lower AICc and BIC are better)")
+    return "\n".join([title, text_table(header, rows),
+                      f"Recommendation: {comparison.recommendation}"])
+
+
+def comparison_record(comparison: ModelComparison,
+                      records: Sequence[Mapping[str, Any]] | None = None) -> dict[str, Any]:
+    """The JSON record of a model comparison, with each fit's full record when given.
+
+    **Arguments:**
+
+    - `comparison`: from :func:`fitting.diagnostics.compare_models`.
+    - `records`: the :func:`fit_record` of each fit, in the same order, or ``None``.
+
+    **Returns:** ``{"data", "models": [{model, parameters, n_parameters, sse,
+    log_likelihood, aicc, delta_aicc, akaike_weight, bic, converged, compared,
+    lack_of_fit}], "best", "indistinguishable", "recommendation"}`` plus ``"fits"`` (the
+    records) when given.
+    """
+    record = comparison.to_dict()
+    if records is not None:
+        record["fits"] = list(records)
+    return record
 
 
 # --- plot -----------------------------------------------------------------------------------------

@@ -14,9 +14,20 @@ measure this; both use the residuals in time order:
   with the one-sided probability of a value at least this large when the order of the
   residuals is random (:func:`lag1_autocorrelation_p`, a permutation test: like the runs
   test, it assumes exchangeable noise only, not normality; a normal approximation of r1
-  puts 1.5 % in its nominal 1 % tail at n = 40).
+  puts 1.5 % in its nominal 1 % tail at n = 40), or when the signs of the residuals are
+  random (``null="signs"``: independent noise symmetric about zero, of any size at each
+  point; this one also sees residuals that all share one sign).
 
 Residuals exactly zero carry no sign and are left out of the runs test.
+
+:func:`lack_of_fit_test` turns these into the verdict every fit carries (:class:`LackOfFit`):
+the residuals are standardised by the fit's error model first (``sqrt(w) r``), and the fit is
+called systematic when either test, or, where the noise level is known, the scaled residual
+sum of squares, is significant at :data:`LACK_OF_FIT_LEVEL`. Fit residuals are not
+independent noise even when the model is right: ``p`` fitted parameters remove ``p`` smooth
+components, which makes neighbouring residuals slightly anti-correlated and both tests
+conservative; the false-alarm rate on fits of curves the model describes is measured by
+``tests/test_lack_of_fit_study.py``.
 """
 
 from __future__ import annotations
@@ -28,9 +39,12 @@ import numpy as np
 from scipy import special
 
 __all__ = [
+    "LACK_OF_FIT_LEVEL",
+    "LackOfFit",
     "RunsTest",
     "lag1_autocorrelation",
     "lag1_autocorrelation_p",
+    "lack_of_fit_test",
     "runs_distribution",
     "runs_test",
 ]
@@ -118,23 +132,197 @@ def lag1_autocorrelation(residuals: np.ndarray) -> float:
 
 
 def lag1_autocorrelation_p(residuals: np.ndarray, permutations: int = 1999,
-                           seed: int = 0) -> float:
-    """One-sided permutation probability of a lag-1 autocorrelation at least the observed.
+                           seed: int = 0, null: str = "order") -> float:
+    """One-sided randomisation probability of a lag-1 autocorrelation at least the observed.
 
     **Arguments:**
 
     - `residuals`: shape ``(n,)``, ``n >= 3``, in time order.
-    - `permutations`: random orders drawn (the p-value's resolution is 1/(permutations+1)).
-    - `seed`: seed of the orders, so a report is reproducible.
+    - `permutations`: random draws (the p-value's resolution is 1/(permutations+1)).
+    - `seed`: seed of the draws, so a report is reproducible.
+    - `null`: ``"order"``: random orders of the residuals (exchangeable noise);
+      ``"signs"``: random signs of each residual (independent noise symmetric about zero,
+      of any size at each point). Only ``"signs"`` sees residuals that share one sign (an
+      offset the model lacks), since reordering or r1's own normalisation hide it.
 
-    **Returns:** ``(1 + #{orders with r1 >= observed}) / (permutations + 1)``; 1 when every
+    **Returns:** ``(1 + #{draws with r1 >= observed}) / (permutations + 1)``; 1 when every
     residual is zero.
     """
+    if null not in ("order", "signs"):
+        raise ValueError(f"null must be 'order' or 'signs', got {null!r}")
     e = np.asarray(residuals, float)
     observed = lag1_autocorrelation(e)
     if not math.isfinite(observed):
         return 1.0
     rng = np.random.default_rng(seed)
-    shuffled = rng.permuted(np.broadcast_to(e, (permutations, e.size)), axis=1)
+    if null == "signs":
+        shuffled = e * rng.choice([-1.0, 1.0], size=(permutations, e.size))
+    else:
+        shuffled = rng.permuted(np.broadcast_to(e, (permutations, e.size)), axis=1)
     r1 = np.sum(shuffled[:, 1:] * shuffled[:, :-1], axis=1) / float(e @ e)
     return float((1 + np.sum(r1 >= observed - 1e-12 * abs(observed))) / (permutations + 1))
+
+
+# --- the verdict -------------------------------------------------------------------------------
+
+#: Significance level of each residual test (runs, lag-1 autocorrelation, and the scaled sum of
+#: squares where the noise level is known): below it in any one, the misfit is systematic.
+LACK_OF_FIT_LEVEL = 0.01
+#: A root-mean-square residual below this fraction of the data's peak counts as an exact fit:
+#: no detector resolves a millionth of its range, and the residuals of a fit to noise-free
+#: numbers are round-off, whose order carries no meaning.
+NEGLIGIBLE_MISFIT = 1e-6
+#: Fewest points (with non-zero weight) on which the residual tests are run.
+MIN_TEST_POINTS = 8
+
+
+@dataclass(frozen=True)
+class LackOfFit:
+    """Whether a fit's residuals show systematic structure, with the evidence in numbers.
+
+    **Fields:**
+
+    - `systematic`: the model does not describe the curve (some test below `level`).
+    - `tested`: whether the tests were run (``False`` for fewer than
+      :data:`MIN_TEST_POINTS` points, or residuals at round-off level).
+    - `runs_test_p`, `runs`, `expected_runs`: the runs test on the signs of the
+      standardised residuals (:func:`runs_test`).
+    - `lag1_autocorrelation`, `lag1_p`: lag-1 autocorrelation of the standardised
+      residuals and its random-sign probability (:func:`lag1_autocorrelation_p` with
+      ``null="signs"``, which also sees an offset: residuals that all share one sign).
+    - `scaled_sse`, `scaled_sse_p`: with a known noise level, ``Σ w r² / (noise² dof)``
+      (1 expected) and ``P(χ²_dof >= Σ w r² / noise²)``; ``None`` when the noise level is
+      estimated from the same residuals (then the ratio is 1 by construction).
+    - `n_points`: points tested (non-zero weight).
+    - `level`: the significance level of each test.
+    - `statement`: the verdict in plain words with its numbers.
+    """
+
+    systematic: bool
+    tested: bool
+    runs_test_p: float
+    runs: int
+    expected_runs: float
+    lag1_autocorrelation: float
+    lag1_p: float
+    scaled_sse: float | None
+    scaled_sse_p: float | None
+    n_points: int
+    level: float
+    statement: str
+
+    def __str__(self) -> str:
+        return self.statement
+
+    def to_dict(self) -> dict:
+        """A JSON-ready record (plain numbers; ``None`` for undefined ones)."""
+
+        def number(x):
+            return float(x) if x is not None and math.isfinite(x) else None
+
+        return {
+            "systematic": bool(self.systematic),
+            "tested": bool(self.tested),
+            "runs_test_p": number(self.runs_test_p),
+            "runs": int(self.runs),
+            "expected_runs": number(self.expected_runs),
+            "lag1_autocorrelation": number(self.lag1_autocorrelation),
+            "lag1_p": number(self.lag1_p),
+            "scaled_sse": number(self.scaled_sse),
+            "scaled_sse_p": number(self.scaled_sse_p),
+            "n_points": int(self.n_points),
+            "level": float(self.level),
+            "statement": self.statement,
+        }
+
+
+def _probability_text(p: float, floor: float = 0.0) -> str:
+    return f"p <= {floor:.1g}" if p <= floor else f"p = {p:.2g}"
+
+
+def lack_of_fit_test(
+    residuals: np.ndarray,
+    weights: np.ndarray | None = None,
+    *,
+    dof: float | None = None,
+    noise: float | None = None,
+    peak: float | None = None,
+    level: float = LACK_OF_FIT_LEVEL,
+    permutations: int = 1999,
+    seed: int = 0,
+) -> LackOfFit:
+    """The lack-of-fit verdict on a fit's residuals: runs, lag-1 autocorrelation, scaled SSE.
+
+    **Arguments:**
+
+    - `residuals`: model minus data in time order, shape ``(n,)``, unit U.
+    - `weights`: the fit's weights ``w_i >= 0`` multiplying squared residuals (its error
+      model: ``1/σ_i²`` up to a common factor); residuals are standardised as ``sqrt(w) r``
+      and zero-weight points are left out. ``None``: all one.
+    - `dof`: degrees of freedom of ``Σ w r²`` (``n - p``), for the scaled sum of squares.
+    - `noise`: the known standard deviation of ``sqrt(w) r`` (1 when the weights are
+      ``1/σ_i²`` with known ``σ_i``; the relative noise level for weights ``1/model²``), or
+      ``None`` when it is estimated from these residuals (no scaled-SSE test then).
+    - `peak`: the data's largest magnitude (unit U); a root-mean-square residual below
+      :data:`NEGLIGIBLE_MISFIT` of it counts as an exact fit. ``None``: no such check.
+    - `level`: significance level of each test.
+    - `permutations`, `seed`: of the lag-1 autocorrelation's random-sign test.
+
+    **Returns:** a :class:`LackOfFit`.
+    """
+    r = np.asarray(residuals, float)
+    w = np.ones_like(r) if weights is None else np.asarray(weights, float)
+    if w.shape != r.shape:
+        raise ValueError(f"weights have shape {w.shape}, residuals {r.shape}")
+    if not 0 < level < 1:
+        raise ValueError(f"level must lie in (0, 1), got {level}")
+    if noise is not None and not (math.isfinite(noise) and noise > 0):
+        raise ValueError(f"noise must be a positive number, got {noise}")
+    used = w > 0
+    raw = r[used]
+    z = np.sqrt(w[used]) * raw
+    n = int(z.size)
+    nan = math.nan
+
+    def untested(reason: str) -> LackOfFit:
+        return LackOfFit(False, False, nan, 0, nan, nan, nan, None, None, n, level, reason)
+
+    if n < MIN_TEST_POINTS:
+        return untested(f"Not tested for lack of fit: {n} points, fewer than the "
+                        f"{MIN_TEST_POINTS} the residual tests need.")
+    rms = float(np.sqrt(np.mean(raw**2)))
+    if peak is not None and peak > 0 and rms <= NEGLIGIBLE_MISFIT * peak:
+        return untested(f"The model reproduces the curve exactly (root-mean-square residual "
+                        f"{rms / peak:.1g} of the peak, below {NEGLIGIBLE_MISFIT:g}): no "
+                        "measurement is this precise, so the residual tests do not apply.")
+    runs = runs_test(z)
+    r1 = lag1_autocorrelation(z)
+    r1_p = lag1_autocorrelation_p(z, permutations, seed, null="signs")
+    scaled = scaled_p = None
+    if noise is not None and dof is not None and dof > 0:
+        chi_square = float(z @ z) / noise**2
+        scaled = chi_square / dof
+        scaled_p = float(special.gammaincc(0.5 * dof, 0.5 * chi_square))
+    failed = [runs.p < level, r1_p < level, scaled_p is not None and scaled_p < level]
+    systematic = any(failed)
+    floor = 1.0 / (permutations + 1)
+    if runs.n_positive and runs.n_negative:
+        signs = (f"{runs.runs} runs of residual signs where {runs.expected:.1f} are expected "
+                 f"at random ({_probability_text(runs.p)})")
+    else:
+        signs = f"all {runs.n_positive + runs.n_negative} non-zero residuals of one sign"
+    evidence = f"{signs}, lag-1 autocorrelation {r1:+.2f} ({_probability_text(r1_p, floor)})"
+    if scaled is not None:
+        evidence += (f", residual sum of squares {scaled:.3g} times its expected value "
+                     f"({_probability_text(scaled_p)})")
+    if systematic:
+        statement = (f"The model does not describe this curve: its residuals are systematic "
+                     f"({evidence}; level {level:g}). Its standard errors and intervals "
+                     "assume a model that fits, so they understate the uncertainty; try "
+                     "another model, a baseline or a dead time, or check the data (noise "
+                     "correlated between neighbouring samples gives the same signs).")
+    else:
+        statement = (f"No lack of fit: the residuals look like noise ({evidence}; "
+                     f"level {level:g}).")
+    return LackOfFit(systematic, True, runs.p, runs.runs, runs.expected, r1, r1_p, scaled,
+                     scaled_p, n, level, statement)

@@ -6,6 +6,7 @@ A :class:`FitResult` is immutable (a frozen dataclass with read-only arrays), li
 
 from __future__ import annotations
 
+import functools
 import importlib
 import json
 import math
@@ -20,6 +21,7 @@ import numpy as np
 from fitting.data import Curve
 from fitting.models import Model
 from fitting.parameters import Parameters
+from fitting.residuals import LackOfFit, lack_of_fit_test
 from fitting.solve import MultiStart, Optimiser
 
 __all__ = ["FitResult", "FitSettings", "FitStats", "RelativeErrors"]
@@ -127,6 +129,8 @@ class FitResult:
       `predicted`, `residuals` (model - data), `jacobian` (d predicted / d free), all
       read-only arrays.
     - `settings`: the :class:`FitSettings` the fit ran with.
+    - `lack_of_fit`: the :class:`~fitting.residuals.LackOfFit` verdict on the residuals
+      (computed on first use).
     """
 
     model: Model
@@ -200,6 +204,23 @@ class FitResult:
                         self.sigma, self.aic, self.bic, self.n_evaluations, self.n_steps,
                         self.n_starts, self.wall_time, self.compile_time)
 
+    @functools.cached_property
+    def lack_of_fit(self) -> LackOfFit:
+        """The lack-of-fit verdict on this fit's residuals, standardised by its error model.
+
+        Runs test, lag-1 autocorrelation (:func:`fitting.residuals.lack_of_fit_test`) on
+        ``sqrt(w) r`` (``w r`` for the mean absolute error, whose weights multiply ``|r|``),
+        leaving out zero-weight points. The noise level is taken as estimated from the same
+        residuals, so there is no scaled-SSE test here; give a known one to
+        :func:`fitting.diagnostics.lack_of_fit`.
+        """
+        weights = np.asarray(self.weights, dtype=float)
+        if self.loss_name == "mae":
+            weights = weights**2
+        used = weights > 0
+        peak = float(np.max(np.abs(self.observed[used]), initial=0.0))
+        return lack_of_fit_test(self.residuals, weights, dof=self.dof, peak=peak)
+
     def equivalent_adm(self, length: float | None = None) -> dict[str, Any] | None:
         """The closed–closed ADM equivalent to this fit, from the model's hook, with units.
 
@@ -246,6 +267,8 @@ class FitResult:
             f"    residual std (s)   = {self.sigma:.6g}",
             f"    AIC                = {self.aic:.4f}",
             f"    BIC                = {self.bic:.4f}",
+            "[[Lack of fit]]",
+            f"    {self.lack_of_fit.statement}",
             "[[Variables]]",
         ]
         width = max(len(n) for n in self.values)
@@ -326,6 +349,7 @@ class FitResult:
             "n_steps": self.n_steps,
             "wall_time": self.wall_time,
             "compile_time": self.compile_time,
+            "lack_of_fit": self.lack_of_fit.to_dict(),
         }
 
     def restart_parameters(self) -> Parameters:
