@@ -65,6 +65,34 @@ class GaussNewtonUncertainty:
     singular: bool
 
 
+def _unit_columns(jacobian: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``sqrt(W) J`` with unit-norm columns, and the column norms (0 for a zero column).
+
+    The curvature of the scaled columns, ``D Jᵀ W J D`` with ``D = diag(1 / norms)``, has a
+    unit diagonal whatever the units of the parameters (seconds or hours, a rate or a
+    Peclet number), so a test of its eigenvalues for singularity does not depend on them;
+    the columns are divided by their largest entry first, so squares neither overflow nor
+    underflow.
+    """
+    root = np.sqrt(weights)[:, None] * jacobian
+    peak = np.max(np.abs(root), axis=0) if root.size else np.zeros(jacobian.shape[1])
+    peak = np.where(np.isfinite(peak) & (peak > 0), peak, 1.0)
+    root = root / peak
+    norm = np.sqrt(np.sum(root**2, axis=0))
+    usable = norm > 0
+    root = root / np.where(usable, norm, 1.0)
+    return root, np.where(usable, norm * peak, 0.0)
+
+
+def _singular(scaled_curvature: np.ndarray, norms: np.ndarray) -> bool:
+    """Whether a unit-diagonal curvature (see :func:`_unit_columns`) is numerically singular."""
+    if scaled_curvature.size == 0 or not np.all(np.isfinite(scaled_curvature)):
+        return True
+    eigenvalues = np.linalg.eigvalsh(scaled_curvature)
+    return bool(np.any(norms <= 0) or eigenvalues.max() <= 0
+                or eigenvalues.min() <= SINGULAR_RATIO * eigenvalues.max())
+
+
 def effective_degrees_of_freedom(jacobian: np.ndarray, weights: np.ndarray,
                                  variance_factors: np.ndarray) -> float:
     """Degrees of freedom of ``Σ w r²`` when the weights are not the inverse variances.
@@ -72,7 +100,9 @@ def effective_degrees_of_freedom(jacobian: np.ndarray, weights: np.ndarray,
     With ``Var(y_i) = σ² v_i``, weights ``W`` and the weighted projection
     ``P = J (Jᵀ W J)⁻¹ Jᵀ W``, the residuals of the linearised fit are ``(I - P) ε`` and
     ``E[Σ w r²] = σ² tr(W (I - P) V (I - P)ᵀ)``: this trace is the number of degrees of
-    freedom, ``n - p`` when ``W = V⁻¹``.
+    freedom, ``n - p`` when ``W = V⁻¹``. Expanded, it is
+    ``Σ_{w_i > 0} a_i - tr(A⁻¹ Jᵀ diag(w a) J)`` with ``A = Jᵀ W J`` and ``a = w v``, which
+    costs ``O(n p²)`` time and ``O(n p)`` memory (never an ``n × n`` matrix).
 
     **Arguments:**
 
@@ -85,15 +115,14 @@ def effective_degrees_of_freedom(jacobian: np.ndarray, weights: np.ndarray,
     """
     jacobian = np.asarray(jacobian, dtype=float)
     weights = np.asarray(weights, dtype=float)
-    factors = np.asarray(variance_factors, dtype=float)
-    curvature = jacobian.T @ (weights[:, None] * jacobian)
-    eigenvalues = np.linalg.eigvalsh(curvature)
-    if eigenvalues.size == 0 or eigenvalues.min() <= SINGULAR_RATIO * max(eigenvalues.max(), 0):
+    factors = np.where(weights > 0, np.asarray(variance_factors, dtype=float), 0.0)
+    columns, norms = _unit_columns(jacobian, weights)
+    curvature = columns.T @ columns
+    if _singular(curvature, norms):
         return math.nan
-    projection = jacobian @ np.linalg.solve(curvature, jacobian.T * weights[None, :])
-    residual_map = np.eye(len(weights)) - projection
-    variance = np.divide(factors, weights, out=np.zeros_like(factors), where=weights > 0)
-    return float(np.einsum("i,ij,j->", weights, residual_map**2, variance))
+    # Jᵀ diag(w a) J in the same column scaling: (sqrt(W) J D)ᵀ diag(a) (sqrt(W) J D).
+    spread = columns.T @ (factors[:, None] * columns)
+    return float(np.sum(factors) - np.trace(np.linalg.solve(curvature, spread)))
 
 
 def gauss_newton_uncertainty(
@@ -124,14 +153,17 @@ def gauss_newton_uncertainty(
     dof = n_points - n_free
     sse = float(np.sum(weights * residual**2))
     variance = sse / dof if dof > 0 else math.nan
-    curvature = jacobian.T @ (weights[:, None] * jacobian)
-    eigenvalues, eigenvectors = np.linalg.eigh(curvature)
-    largest = eigenvalues.max() if eigenvalues.size else 0.0
-    singular = bool(largest <= 0 or eigenvalues.min() <= SINGULAR_RATIO * largest)
+    # C = s² A⁻¹ = (s D) (D A D)⁻¹ (s D), in unit-free column scaling (see _unit_columns).
+    columns, norms = _unit_columns(jacobian, weights)
+    scaled = columns.T @ columns
+    singular = _singular(scaled, norms)
     if singular:
         covariance = np.full((n_free, n_free), np.nan)
     else:
-        covariance = variance * (eigenvectors / eigenvalues) @ eigenvectors.T
+        eigenvalues, eigenvectors = np.linalg.eigh(scaled)
+        spread = math.sqrt(variance) / norms if dof > 0 else np.full(n_free, np.nan)
+        covariance = (spread[:, None] * ((eigenvectors / eigenvalues) @ eigenvectors.T)
+                      * spread[None, :])
     stderr = np.sqrt(np.clip(np.diag(covariance), 0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
         correlation = covariance / np.outer(stderr, stderr)

@@ -139,6 +139,43 @@ def test_effective_degrees_of_freedom_are_n_minus_p_for_inverse_variance_weights
     assert dof < 11.5
 
 
+def test_effective_degrees_of_freedom_equal_the_explicit_n_by_n_trace():
+    # The O(n p²) form against the definition tr(W (I - P) V (I - P)ᵀ) with the n x n
+    # projection P = J (Jᵀ W J)⁻¹ Jᵀ W, on small problems with some points weighted zero.
+    rng = np.random.default_rng(8)
+    for n, p in [(5, 1), (9, 2), (20, 3), (40, 4)]:
+        jacobian = rng.normal(size=(n, p)) * 10.0 ** rng.uniform(-2, 2, p)
+        weights = rng.uniform(0.2, 3.0, n)
+        weights[rng.permutation(n)[: n // 5]] = 0.0
+        factors = rng.uniform(0.1, 4.0, n)
+        projection = jacobian @ np.linalg.solve(jacobian.T @ (weights[:, None] * jacobian),
+                                                jacobian.T * weights[None, :])
+        residual_map = np.eye(n) - projection
+        variance = np.divide(factors, weights, out=np.zeros(n), where=weights > 0)
+        explicit = np.trace(np.diag(weights) @ residual_map @ np.diag(variance)
+                            @ residual_map.T)
+        assert effective_degrees_of_freedom(jacobian, weights, factors) == pytest.approx(
+            explicit, rel=1e-12)
+
+
+def test_standard_errors_do_not_depend_on_the_units_of_the_parameters():
+    # Measuring a parameter in units 1e8 times smaller multiplies its Jacobian column by
+    # 1e-8 and its standard error by 1e8, exactly; the curvature must not become "singular"
+    # because its entries span 16 orders of magnitude.
+    rng = np.random.default_rng(9)
+    jacobian = _basis(TIME)
+    residual = rng.normal(size=TIME.size)
+    reference = gauss_newton_uncertainty(jacobian, residual, np.ones(TIME.size))
+    for factor in (1e-8, 1e8, 1e-100, 1e100):
+        units = np.array([factor, 1.0, 1.0 / factor])
+        scaled = gauss_newton_uncertainty(jacobian * units, residual, np.ones(TIME.size))
+        assert not scaled.singular
+        np.testing.assert_allclose(scaled.all_stderr * units, reference.all_stderr, rtol=1e-10)
+        np.testing.assert_allclose(scaled.correlation, reference.correlation, atol=1e-12)
+        assert effective_degrees_of_freedom(jacobian * units, np.ones(TIME.size),
+                                            np.ones(TIME.size)) == pytest.approx(TIME.size - 3)
+
+
 def test_gauss_newton_uncertainty_marks_a_singular_curvature():
     jacobian = np.array([[1.0, 2.0], [2.0, 4.0], [3.0, 6.0]])  # second column = 2 x first
     uncertainty = gauss_newton_uncertainty(jacobian, np.array([0.1, -0.1, 0.05]), np.ones(3))
