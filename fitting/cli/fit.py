@@ -1,6 +1,7 @@
 """The ``axialmix fit`` sub-command: fit residence-time curves from CSV files.
 
     axialmix fit FILE_OR_FOLDER... --model adm|adm-fv|adm-open|tanks|four-compartment|NET.json
+                 (or several, comma-separated, to compare them)
                  [--fix NAME=VALUE] [--tie NAME=OTHER] [--loss sse|mae] [--grid] [--starts N]
                  [--errors absolute|relative] [--length METRES] --out DIR
 
@@ -34,6 +35,14 @@ are then too narrow.
 With ``--loss mae`` the least-squares multi-start fit is polished by a fit on the mean
 absolute error (which is not smooth enough for multi-start L-BFGS alone); the evaluations
 of both stages are reported.
+
+With several models (``--model adm,adm-exchange,tanks``) each curve is fitted with each of
+them and one table compares them: parameters, SSE, AICc, BIC and the lack-of-fit verdict,
+with a recommendation that says when the data cannot tell the models apart
+(:func:`fitting.diagnostics.compare_models`). Each fit is written to
+``DIR/<name>.<model>.json`` and ``.png``, the comparison to ``DIR/<name>.comparison.json``;
+several curves also give ``DIR/summary.json`` and ``DIR/summary.csv`` with one row per curve
+and model. ``--fix`` and ``--tie`` apply to the models that have the parameters they name.
 
 With ``--grid`` the source's exhaustive grid search runs on the same loss: rates (parameters
 named ``k_*``) over ``[0 : 0.125 : 2.5]`` (MODELS.md section 3), any other free parameter over
@@ -96,7 +105,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         "any case)")
     parser.add_argument("--model", default="adm",
                         help="adm, adm-fv, adm-open, tanks, four-compartment, or a network "
-                        "JSON file (default: adm)")
+                        "JSON file (default: adm); several, comma-separated (adm,tanks), "
+                        "are fitted and compared in one table")
     parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                         help="hold a parameter at a value (repeatable)")
     parser.add_argument("--tie", action="append", default=[], metavar="NAME=OTHER",
@@ -138,6 +148,41 @@ def _model(name: str):
             raise InputError(f"{path}: {' '.join(str(error).split())}") from None
     raise InputError(f"--model: unknown model {name!r}; choose one of {', '.join(MODELS)} "
                      "or give a network JSON file")
+
+
+def _models(text: str) -> list:
+    """The models of ``--model``: one name, or several separated by commas (to compare)."""
+    names = [name.strip() for name in text.split(",")]
+    if len(names) > 1 and not all(names):
+        raise InputError(f"--model: empty name in {text!r}; separate model names by commas")
+    models = [_model(name) for name in names]
+    seen = set()
+    for model in models:
+        if model.name in seen:
+            raise InputError(f"--model: {model.name!r} is given twice")
+        seen.add(model.name)
+    return models
+
+
+def _settings_for_each(models, fixes: Sequence[str], ties: Sequence[str]) -> list[dict]:
+    """--fix and --tie settings of each compared model: an option applies to the models that
+    have every parameter it names, and must apply to at least one."""
+    if len(models) == 1:
+        return [_parameter_settings(models[0], fixes, ties)]
+    for option, items in (("--fix", fixes), ("--tie", ties)):
+        for name, value in _pairs(items, option):
+            labels = {name} if option == "--fix" else {name, value}
+            if not any(labels <= set(m.parameter_names) for m in models):
+                raise InputError(f"{option}: no compared model has {' and '.join(sorted(labels))}"
+                                 f" ({', '.join(m.name for m in models)})")
+
+    def applies(model, item: str, option: str) -> bool:
+        name, _, value = item.partition("=")
+        labels = {name.strip()} if option == "--fix" else {name.strip(), value.strip()}
+        return labels <= set(model.parameter_names)
+
+    return [_parameter_settings(m, [f for f in fixes if applies(m, f, "--fix")],
+                                [t for t in ties if applies(m, t, "--tie")]) for m in models]
 
 
 def _pairs(items: Sequence[str], option: str) -> list[tuple[str, str]]:
@@ -340,17 +385,24 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--length: must be a positive number of metres, got {args.length}")
         out = Path(args.out)
         _check_out(out)
-        model = _model(args.model)
-        settings = _parameter_settings(model, args.fix, args.tie)
+        models = _models(args.model)
+        if len(models) > 1 and args.grid:
+            raise InputError("--grid compares a fit with the source's grid search; use it with "
+                             "one --model")
+        every_settings = _settings_for_each(models, args.fix, args.tie)
+        model, settings = models[0], every_settings[0]
         curves = _read_curves(files)
-        _check_fixed_curves(model, settings, curves, files)
+        for each, each_settings in zip(models, every_settings, strict=True):
+            _check_fixed_curves(each, each_settings, curves, files)
     except InputError as error:
         return error_line("fit", str(error))
     except KeyboardInterrupt:
         print("axialmix fit: interrupted before fitting; nothing written", file=sys.stderr)
         return INTERRUPTED
     starts = args.starts or model.default_starts
-    return _Run(model, curves, files, settings, args, starts, out).execute()
+    run = _Run(model, curves, files, settings, args, starts, out)
+    run.compared = list(zip(models, every_settings, strict=True)) if len(models) > 1 else []
+    return run.execute()
 
 
 class _Run:
@@ -360,6 +412,8 @@ class _Run:
         self.model, self.curves, self.files, self.settings = model, curves, files, settings
         self.args, self.starts, self.out = args, starts, out
         self.records: list[dict[str, Any]] = []
+        #: ``(model, settings)`` of each compared model (empty for one model).
+        self.compared: list[tuple[Any, dict]] = []
         self.stop = threading.Event()
         self.writing = threading.Lock()
         self.failure: BaseException | None = None
@@ -432,6 +486,12 @@ class _Run:
                     # No terminal for the bar: one log line per curve instead.
                     print(f"axialmix fit: [{index + 1}/{len(self.curves)}] {curve.name}",
                           file=sys.stderr, flush=True)
+                if self.compared:
+                    status = self._compare(curve, path)
+                    if status != OK:
+                        return status
+                    bar.update(1)
+                    continue
                 try:
                     result = _fit_one(self.model, curve, self.settings, args.loss, self.starts,
                                       args.errors == "relative", self.stop)
@@ -466,11 +526,68 @@ class _Run:
         print(f"results written to {out}")
         return OK
 
+    def _compare(self, curve, path) -> int:
+        """Fit one curve with every compared model; print and write the comparison."""
+        from fitting.diagnostics import compare_models
+        from fitting.report import (
+            comparison_record,
+            comparison_table,
+            fit_record,
+            plot_fit,
+            write_json,
+        )
+
+        args, out = self.args, self.out
+        results, records = [], []
+        for model, settings in self.compared:
+            try:
+                result = _fit_one(model, curve, settings, args.loss,
+                                  args.starts or model.default_starts,
+                                  args.errors == "relative", self.stop)
+            except ValueError as error:
+                with self.writing:
+                    self.status = error_line("fit", f"{path}: model {model.name}: {error}")
+                return BAD_INPUT
+            if self.stop.is_set():
+                return INTERRUPTED
+            results.append(result)
+            records.append(fit_record(result, None, source=str(path), length_m=args.length))
+        comparison = compare_models(results)
+        record = comparison_record(comparison, records)
+        record["source"] = str(path)
+        with self.writing:
+            if self.stop.is_set():
+                return INTERRUPTED
+            for result, fitted in zip(results, records, strict=True):
+                write_json(out / f"{curve.name}.{result.model.name}.json", fitted)
+                plot_fit(out / f"{curve.name}.{result.model.name}.png", result)
+            write_json(out / f"{curve.name}.comparison.json", record)
+            self.records.append(record)
+        print(comparison_table(comparison), flush=True)
+        return OK
+
+    def _write_comparison_summary(self, records, interrupted: bool) -> None:
+        from fitting.report import write_csv, write_json
+
+        write_json(self.out / "summary.json", {
+            "models": [m.name for m, _ in self.compared], "loss_name": self.args.loss,
+            "complete": not interrupted,
+            "comparisons": [{k: v for k, v in r.items() if k != "fits"} for r in records]})
+        header = ["data", "model", "sse", "aicc", "delta_aicc", "bic", "systematic_misfit",
+                  "converged", "recommended"]
+        rows = [[r["data"], m["model"], m["sse"], m["aicc"], m["delta_aicc"], m["bic"],
+                 m["lack_of_fit"]["systematic"], m["converged"], m["model"] == r["best"]]
+                for r in records for m in r["models"]]
+        write_csv(self.out / "summary.csv", header, rows)
+
     def _write_summary(self, interrupted: bool) -> None:
         from fitting.report import summary_rows, summary_table, write_csv, write_json
 
         records = list(self.records)
         if len(self.curves) <= 1 or not records:
+            return
+        if self.compared:
+            self._write_comparison_summary(records, interrupted)
             return
         print(summary_table(records), flush=True)
         write_json(self.out / "summary.json", {"model": self.model.name,
