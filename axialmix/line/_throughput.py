@@ -83,8 +83,12 @@ class FlowSchedule(eqx.Module):
 
     def throughput(self, t: ArrayLike) -> Array:
         """Cumulative throughput ``∫_0^t Q(s) ds`` at times of any shape (exact)."""
-        t = jnp.asarray(t, float)
-        return self._cumulative_from_first(t) - self._cumulative_from_first(jnp.zeros(()))
+        return _throughput(self, jnp.asarray(t, float))
+
+
+@eqx.filter_jit
+def _throughput(schedule: FlowSchedule, t: Array) -> Array:
+    return schedule._cumulative_from_first(t) - schedule._cumulative_from_first(jnp.zeros(()))
 
 
 def throughput_clock(schedule: FlowSchedule, times: ArrayLike, *, holdup: ArrayLike) -> Array:
@@ -160,11 +164,25 @@ def exit_age_changing_throughput(
     """
     _check_units(rtd, schedule)
     require_finite("injection_time", injection_time)
-    clock = equivalent_time(schedule, times, reference_flow=reference_flow)
-    start = equivalent_time(schedule, injection_time, reference_flow=reference_flow)
-    lags = clock - start
+    require_finite("times", times)
+    require_positive("reference_flow", reference_flow)
+    times = jnp.asarray(times, float)
+    reference_flow = jnp.asarray(reference_flow, float)
+    injection_time = jnp.asarray(injection_time, float)
+    lags = _lags(schedule, times, injection_time, reference_flow)
     evaluator = as_evaluator(rtd, jnp.max(lags))
-    return evaluator.exit_age(lags) * schedule.flow(times) / jnp.asarray(reference_flow, float)
+    return _real_time_density(evaluator, schedule, times, lags, reference_flow)
+
+
+@eqx.filter_jit
+def _lags(schedule, times, injection_time, reference_flow):
+    return (schedule._cumulative_from_first(times)
+            - schedule._cumulative_from_first(injection_time)) / reference_flow
+
+
+@eqx.filter_jit
+def _real_time_density(evaluator, schedule, times, lags, reference_flow):
+    return evaluator.exit_age(lags) * schedule.flow(times) / reference_flow
 
 
 def _retimed(disturbance: Disturbance, schedule: FlowSchedule, reference_flow) -> Disturbance:
@@ -184,6 +202,17 @@ def _retimed(disturbance: Disturbance, schedule: FlowSchedule, reference_flow) -
         disturbance.value_unit,
         disturbance.time_unit,
     )
+
+
+@eqx.filter_jit
+def _retimed_with_clock(disturbance, schedule, reference_flow, times):
+    return (_retimed(disturbance, schedule, reference_flow),
+            equivalent_time(schedule, times, reference_flow=reference_flow))
+
+
+@eqx.filter_jit
+def _response_on_clock(evaluator, disturbance, clock):
+    return response_at(evaluator, disturbance, clock)
 
 
 def outlet_response_changing_throughput(
@@ -218,10 +247,9 @@ def outlet_response_changing_throughput(
     require_finite("times", times)
     times = jnp.asarray(times, float)
     reference_flow = jnp.asarray(reference_flow, float)
-    retimed = _retimed(disturbance, schedule, reference_flow)
-    clock = equivalent_time(schedule, times, reference_flow=reference_flow)
+    retimed, clock = _retimed_with_clock(disturbance, schedule, reference_flow, times)
     evaluator = as_evaluator(rtd, lag_horizon(retimed, clock))
-    outlet = response_at(evaluator, retimed, clock)
+    outlet = _response_on_clock(evaluator, retimed, clock)
     return OutletResponse(
         times, disturbance.value(times), outlet, rtd.time_unit, disturbance.value_unit
     )
