@@ -36,14 +36,19 @@ __all__ = [
     "fit_table",
     "identifiability_statements",
     "plot_fit",
+    "render_fit_png",
     "summary_rows",
     "summary_table",
     "text_table",
     "write_atomic",
     "write_csv",
     "write_json",
+    "write_png",
 ]
 
+#: Most data points drawn in a plot; longer curves are drawn with every k-th point (a plot of
+#: a million markers takes seconds and shows nothing more).
+MAX_DRAWN_POINTS = 5000
 #: A 95 % interval wider than this multiple of the value (or reaching a bound) means the
 #: curve does not determine the parameter.
 UNDETERMINED_RELATIVE_ERROR = 0.5
@@ -465,34 +470,71 @@ def plot_fit(path: str | Path, result: FitResult, grid: GridResult | None = None
 
     **Returns:** the path.
     """
+    return write_png(path, render_fit_png(result, grid))
+
+
+def write_png(path: str | Path, image: bytes) -> Path:
+    """Write PNG bytes (from :func:`render_fit_png`) to `path` atomically; returns the path."""
+    return write_atomic(path, lambda stream: stream.write(image), binary=True)
+
+
+def _drawn(count: int) -> tuple[slice, str]:
+    """Every k-th point of `count`, so that at most :data:`MAX_DRAWN_POINTS` are drawn, and
+    the words that say so ("" when all are drawn)."""
+    stride = max(1, math.ceil(count / MAX_DRAWN_POINTS))
+    if stride == 1:
+        return slice(None), ""
+    return slice(None, None, stride), f", every {stride}th of {count:,} points drawn"
+
+
+def _plottable(values) -> np.ndarray:
+    """Values as floats with NaN (a gap in the line) where they are not finite."""
+    values = np.asarray(values, dtype=float)
+    return np.where(np.isfinite(values), values, np.nan)
+
+
+def render_fit_png(result: FitResult, grid: GridResult | None = None) -> bytes:
+    """The two-panel PNG of :func:`plot_fit` as bytes, nothing written.
+
+    A curve of more than :data:`MAX_DRAWN_POINTS` samples is drawn with every k-th sample
+    (the legend and the residual axis say so); the fit used them all. Values that are not
+    finite are left out of the lines.
+
+    **Arguments:** as :func:`plot_fit`, without the path.
+
+    **Returns:** the PNG file's bytes.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    time = np.asarray(result.time)
-    observed = np.asarray(result.observed)
-    fine = np.linspace(0.0, float(time[-1]) * 1.05, 400)[1:]
+    every, note = _drawn(len(result.time))
+    time = np.asarray(result.time)[every]
+    observed = _plottable(np.asarray(result.observed)[every])
+    fine = np.linspace(0.0, float(np.asarray(result.time)[-1]) * 1.05, 400)[1:]
     model = result.model
-    curve = np.asarray(model(fine, {n: result.values[n] for n in model.parameter_names}))
+    curve = _plottable(model(fine, {n: result.values[n] for n in model.parameter_names}))
     figure = Figure(figsize=(7, 6), layout="constrained")
     top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[3, 1.3])
-    top.plot(time, observed, "o", color="black", label="data")
+    top.plot(time, observed, "o", color="black", label=f"data{note}",
+             markersize=6 if not note else 2)
     top.plot(fine, curve, "-", color="tab:blue",
              label=f"fit ({model.name}, {result.loss_name} = {result.loss:.3g})")
     if grid is not None:
-        grid_curve = np.asarray(model(fine, {n: grid.values[n] for n in model.parameter_names}))
+        grid_curve = _plottable(model(fine, {n: grid.values[n] for n in model.parameter_names}))
         top.plot(fine, grid_curve, "--", color="tab:orange",
                  label=f"grid search ({grid.loss_name} = {grid.loss:.3g})")
     unit = result.time_unit
     top.set_ylabel(f"E(t) (1/{unit})")
     top.set_title(f"{result.name or 'curve'}: model {model.name}", fontsize=10)
     top.legend(fontsize=8)
-    residual = np.asarray(result.predicted) - observed
+    residual = _plottable(np.asarray(result.predicted)[every] - np.asarray(result.observed)[every])
     bottom.axhline(0.0, color="grey", linewidth=0.8)
-    bottom.plot(time, residual, "o-", color="tab:blue", markersize=4)
-    bottom.set_ylabel("residual\n(model - data)")
+    bottom.plot(time, residual, "o-", color="tab:blue", markersize=4 if not note else 1.5,
+                linewidth=1.0 if not note else 0.5)
+    bottom.set_ylabel("residual\n(model - data)" + ("\n(points drawn as above)" if note else ""))
     bottom.set_xlabel(f"time ({unit})")
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=100)
-    return write_atomic(path, lambda f: f.write(buffer.getvalue()), binary=True)
+    return buffer.getvalue()

@@ -4,13 +4,22 @@ Each sub-command lives in its own module of this package, exposing ``add_parser(
 (registers its argparse parser) and ``run(args) -> int`` (runs it, returns the exit status
 of :mod:`axialmix._exits`). Only the chosen sub-command's module is imported, so
 ``axialmix --help`` starts without JAX, and ``axialmix fit`` does not load the simulator.
+
+Ctrl-C: until a sub-command installs its own handler (to keep the results it has finished),
+Ctrl-C prints one line and ends the process at once with status 130 (see
+:class:`_InterruptGuard`): importing JAX, parsing options and checking the input write
+nothing, so there is nothing to save.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
+import signal
 import sys
+import threading
 from types import ModuleType
 
 __all__ = ["COMMANDS", "build_parser", "main"]
@@ -24,6 +33,71 @@ COMMANDS = {
     "anova": ("fitting.cli.anova",
               "analysis of variance of a response over process factors (a study table)"),
 }
+
+
+#: The exit status after Ctrl-C (:data:`axialmix._exits.INTERRUPTED`; importing that module
+#: here would load JAX before ``--help``).
+_INTERRUPTED = 130
+
+
+class _InterruptGuard:
+    """Ctrl-C before a sub-command takes charge of it: one line, then status 130 at once.
+
+    A KeyboardInterrupt raised inside an import (NumPy's extension modules turn it into an
+    ImportError with a traceback) or inside a JAX compilation can leave the interpreter in a
+    state whose teardown crashes (a segmentation fault); nothing has been written yet, so the
+    process ends with ``os._exit``, skipping teardown. Python runs signal handlers only
+    between bytecodes of the main thread, which may sit for seconds inside compiled code (an
+    XLA compilation); a watcher thread woken through :func:`signal.set_wakeup_fd` ends the
+    process then. A sub-command that installs its own SIGINT handler takes over (the watcher
+    leaves the signal to it) until it restores this one.
+    """
+
+    def __init__(self, command: str | None):
+        self.message = f"axialmix{'' if command is None else ' ' + command}: interrupted; " \
+            "nothing written"
+        self.exiting = threading.Lock()
+        self.closed = False
+        self.read, self.write = os.pipe()
+        os.set_blocking(self.write, False)
+        self.previous = signal.signal(signal.SIGINT, self._handler)
+        self.previous_fd = signal.set_wakeup_fd(self.write, warn_on_full_buffer=False)
+        threading.Thread(target=self._watch, name="axialmix-interrupt", daemon=True).start()
+
+    def _handler(self, signum, frame) -> None:
+        self._exit()
+
+    def _watch(self) -> None:
+        try:
+            while not self.closed:
+                data = os.read(self.read, 64)  # waits without holding the GIL
+                if (not self.closed and signal.SIGINT in data
+                        and signal.getsignal(signal.SIGINT) == self._handler):
+                    self._exit()
+        except OSError:
+            pass
+        finally:
+            with contextlib.suppress(OSError):
+                os.close(self.read)
+
+    def _exit(self) -> None:
+        self.exiting.acquire()  # the first of handler and watcher exits; the other waits
+        with contextlib.suppress(OSError, ValueError):
+            print(self.message, file=sys.stderr, flush=True)
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(OSError, ValueError):
+                stream.flush()
+        os._exit(_INTERRUPTED)
+
+    def close(self) -> None:
+        """Restore the previous SIGINT handler and wakeup file; stop the watcher."""
+        self.closed = True
+        signal.set_wakeup_fd(self.previous_fd)
+        signal.signal(signal.SIGINT, self.previous)
+        with contextlib.suppress(OSError):
+            os.write(self.write, b"\0")  # wakes the watcher, which then ends
+        with contextlib.suppress(OSError):
+            os.close(self.write)
 
 
 class _UsageError(Exception):
@@ -81,15 +155,30 @@ def _chosen(argv: list[str]) -> str | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the process exit status."""
+    """Run the command line; returns the process exit status.
+
+    Ctrl-C before a sub-command has taken charge of it (while its modules are imported, its
+    options parsed or its input checked) prints one line and ends the process with status
+    130 (see :class:`_InterruptGuard`).
+    """
     argv = sys.argv[1:] if argv is None else list(argv)
     command = _chosen(argv)
-    parser = build_parser(command) if command is not None else _listing_parser()
+    in_main = threading.current_thread() is threading.main_thread()
+    guard = _InterruptGuard(command) if in_main else None
     try:
-        args = parser.parse_args(argv)
-    except _UsageError:
-        return 2
-    return int(_command(args.command).run(args) or 0)
+        parser = build_parser(command) if command is not None else _listing_parser()
+        try:
+            args = parser.parse_args(argv)
+        except _UsageError:
+            return 2
+        return int(_command(args.command).run(args) or 0)
+    except KeyboardInterrupt:  # called from another thread: no handler of ours was installed
+        print(f"axialmix{'' if command is None else ' ' + command}: interrupted",
+              file=sys.stderr, flush=True)
+        return _INTERRUPTED
+    finally:
+        if guard is not None:
+            guard.close()
 
 
 def _listing_parser() -> argparse.ArgumentParser:

@@ -53,6 +53,7 @@ grid (``k_out``) is held at its fitted value, so the grid is the source's three-
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import math
 import os
@@ -337,6 +338,29 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def _remove_temporary_files(folder: Path) -> None:
+    """Remove the temporary files of :func:`axialmix._files.write_atomic` from `folder`
+    (``.<name>.<random>.tmp``): after Ctrl-C they would never be completed."""
+    for path in folder.glob(".*.tmp"):
+        with contextlib.suppress(OSError):
+            path.unlink()
+
+
+def _exit_now(message: str) -> None:
+    """Print `message` on standard error and end the process with status 130 at once.
+
+    ``os._exit`` skips interpreter teardown, which could wait for or crash on compiled JAX
+    work still running in the worker thread. Output is flushed first; a closed stream does
+    not stop the exit.
+    """
+    with contextlib.suppress(OSError, ValueError):
+        print(message, file=sys.stderr, flush=True)
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+    os._exit(INTERRUPTED)
+
+
 def _grid_for(model, result):
     """Grid axes, held values and ties for ``--grid`` (see the module docstring)."""
     import numpy as np
@@ -419,28 +443,34 @@ class _Run:
         self.failure: BaseException | None = None
         self.status = OK
         self.lock = _Lock(out)
+        #: Whether this run made the --out folder (then Ctrl-C before any result removes it).
+        self.created = False
 
     def execute(self) -> int:
-        try:
-            self.out.mkdir(parents=True, exist_ok=True)
-            self.lock.acquire()
-        except InputError as error:
-            return error_line("fit", str(error))
-        except OSError as error:
-            return error_line("fit", f"{self.out}: --out cannot be created ({error.strerror})")
         in_main = threading.current_thread() is threading.main_thread()
+        # Ctrl-C is handled here from before the folder and the lock exist until after the
+        # lock is gone, so no signal can leave either behind.
         previous = signal.signal(signal.SIGINT, self._interrupt) if in_main else None
-        worker = threading.Thread(target=self._work, name="axialmix-fit", daemon=True)
         try:
+            try:
+                self.created = not self.out.exists()
+                self.out.mkdir(parents=True, exist_ok=True)
+                self.lock.acquire()
+            except InputError as error:
+                return error_line("fit", str(error))
+            except OSError as error:
+                return error_line("fit", f"{self.out}: --out cannot be created "
+                                  f"({error.strerror})")
+            worker = threading.Thread(target=self._work, name="axialmix-fit", daemon=True)
             worker.start()
             while worker.is_alive():
                 worker.join(0.1)
                 if self.stop.is_set():
                     self._leave()
         finally:
+            self.lock.release()
             if in_main:
                 signal.signal(signal.SIGINT, previous)
-            self.lock.release()
         if self.failure is not None:
             raise self.failure
         return self.status
@@ -449,19 +479,24 @@ class _Run:
         self.stop.set()
 
     def _leave(self) -> None:
-        """After Ctrl-C: finish the file being written, write the summary, exit 130 now."""
-        if self.writing.acquire(timeout=WRITE_GRACE):
-            try:
-                self._write_summary(interrupted=True)
-            finally:
-                self.lock.release()
-                print(f"axialmix fit: interrupted after {len(self.records)} of "
-                      f"{len(self.curves)} curves; finished results are in {self.out}",
-                      file=sys.stderr, flush=True)
-                sys.stdout.flush()
-                os._exit(INTERRUPTED)
-        self.lock.release()
-        os._exit(INTERRUPTED)
+        """After Ctrl-C: let the worker finish the files of a curve it is writing (written
+        together, in milliseconds: plots are drawn before), write the summary of the finished
+        curves, remove the lock (and the folder when this run made it and left it empty),
+        exit 130 now."""
+        written = self.writing.acquire(timeout=WRITE_GRACE)
+        try:
+            if written:
+                self._write_summary(interrupted=len(self.records) < len(self.curves))
+            else:
+                _remove_temporary_files(self.out)
+        finally:
+            self.lock.release()
+            if self.created and not self.records:
+                with contextlib.suppress(OSError):
+                    self.out.rmdir()  # only when empty
+            where = f"; finished results are in {self.out}" if self.records else "; nothing written"
+            _exit_now(f"axialmix fit: interrupted after {len(self.records)} of "
+                      f"{len(self.curves)} curves{where}")
 
     def _work(self) -> None:
         try:
@@ -472,7 +507,7 @@ class _Run:
     def _fit_all(self) -> int:
         from axialmix._progress import progress_bar
         from fitting.gridsearch import grid_search
-        from fitting.report import fit_record, fit_table, plot_fit, write_json
+        from fitting.report import fit_record, fit_table, render_fit_png, write_json, write_png
         from fitting.solve import enable_compilation_cache
 
         enable_compilation_cache()
@@ -507,11 +542,14 @@ class _Run:
                     grid = grid_search(self.model, curve, grids, loss=args.loss, fixed=held,
                                        tied=tied, progress=True, stop=self.stop.is_set)
                 record = fit_record(result, grid, source=str(path), length_m=args.length)
+                # Drawn before taking the write lock, which Ctrl-C waits for: drawing takes a
+                # second or more, writing the two files milliseconds.
+                image = render_fit_png(result, grid)
                 with self.writing:
                     if self.stop.is_set():
                         return INTERRUPTED
                     write_json(out / f"{curve.name}.json", record)
-                    plot_fit(out / f"{curve.name}.png", result, grid)
+                    write_png(out / f"{curve.name}.png", image)
                     self.records.append(record)
                 if len(self.curves) == 1:
                     _print_single(result, grid, record, fit_table)
@@ -533,8 +571,9 @@ class _Run:
             comparison_record,
             comparison_table,
             fit_record,
-            plot_fit,
+            render_fit_png,
             write_json,
+            write_png,
         )
 
         args, out = self.args, self.out
@@ -555,12 +594,13 @@ class _Run:
         comparison = compare_models(results)
         record = comparison_record(comparison, records)
         record["source"] = str(path)
+        images = [render_fit_png(result) for result in results]  # before the write lock
         with self.writing:
             if self.stop.is_set():
                 return INTERRUPTED
-            for result, fitted in zip(results, records, strict=True):
+            for result, fitted, image in zip(results, records, images, strict=True):
                 write_json(out / f"{curve.name}.{result.model.name}.json", fitted)
-                plot_fit(out / f"{curve.name}.{result.model.name}.png", result)
+                write_png(out / f"{curve.name}.{result.model.name}.png", image)
             write_json(out / f"{curve.name}.comparison.json", record)
             self.records.append(record)
         print(comparison_table(comparison), flush=True)
@@ -581,11 +621,11 @@ class _Run:
         write_csv(self.out / "summary.csv", header, rows)
 
     def _write_summary(self, interrupted: bool) -> None:
-        from fitting.report import summary_rows, summary_table, write_csv, write_json
-
         records = list(self.records)
         if len(self.curves) <= 1 or not records:
-            return
+            return  # before importing: after Ctrl-C the worker may still be importing
+        from fitting.report import summary_rows, summary_table, write_csv, write_json
+
         if self.compared:
             self._write_comparison_summary(records, interrupted)
             return
