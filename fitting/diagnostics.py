@@ -362,7 +362,7 @@ def lack_of_fit(result: FitResult, noise: float | None = None,
         weights = weights**2
     peak = float(np.max(np.abs(result.observed[weights > 0]), initial=0.0))
     return lack_of_fit_test(result.residuals, weights, dof=result.dof, noise=noise, peak=peak,
-                            level=level)
+                            described=result.described_points(), level=level)
 
 
 # --- model comparison ----------------------------------------------------------------------------

@@ -247,6 +247,7 @@ def lack_of_fit_test(
     dof: float | None = None,
     noise: float | None = None,
     peak: float | None = None,
+    described: np.ndarray | None = None,
     level: float = LACK_OF_FIT_LEVEL,
     permutations: int = 1999,
     seed: int = 0,
@@ -265,6 +266,10 @@ def lack_of_fit_test(
       ``None`` when it is estimated from these residuals (no scaled-SSE test then).
     - `peak`: the data's largest magnitude (unit U); a root-mean-square residual below
       :data:`NEGLIGIBLE_MISFIT` of it counts as an exact fit. ``None``: no such check.
+    - `described`: boolean mask of the points whose noise the weights describe (default:
+      all). The others are left out of the tests: where an error model caps a weight
+      (relative errors below their floor), the noise of those points is far below what the
+      weight implies, and their signs follow the model's smooth deviation, not the noise.
     - `level`: significance level of each test.
     - `permutations`, `seed`: of the lag-1 autocorrelation's random-sign test.
 
@@ -279,6 +284,8 @@ def lack_of_fit_test(
     if noise is not None and not (math.isfinite(noise) and noise > 0):
         raise ValueError(f"noise must be a positive number, got {noise}")
     used = w > 0
+    if described is not None:
+        used &= np.asarray(described, bool)
     raw = r[used]
     z = np.sqrt(w[used]) * raw
     n = int(z.size)

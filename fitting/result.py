@@ -210,8 +210,9 @@ class FitResult:
 
         Runs test, lag-1 autocorrelation (:func:`fitting.residuals.lack_of_fit_test`) on
         ``sqrt(w) r`` (``w r`` for the mean absolute error, whose weights multiply ``|r|``),
-        leaving out zero-weight points. The noise level is taken as estimated from the same
-        residuals, so there is no scaled-SSE test here; give a known one to
+        leaving out zero-weight points and, for relative-error fits, the points whose weight
+        the floor caps (:meth:`described_points`). The noise level is taken as estimated from
+        the same residuals, so there is no scaled-SSE test here; give a known one to
         :func:`fitting.diagnostics.lack_of_fit`.
         """
         weights = np.asarray(self.weights, dtype=float)
@@ -219,7 +220,21 @@ class FitResult:
             weights = weights**2
         used = weights > 0
         peak = float(np.max(np.abs(self.observed[used]), initial=0.0))
-        return lack_of_fit_test(self.residuals, weights, dof=self.dof, peak=peak)
+        return lack_of_fit_test(self.residuals, weights, dof=self.dof, peak=peak,
+                                described=self.described_points())
+
+    def described_points(self) -> np.ndarray:
+        """Which points' noise the fit's weights describe (boolean, one per point).
+
+        All of them, except in a relative-error fit the points whose model value lies below
+        the floor (``|model| < floor · peak``): their weight is capped there, so it no longer
+        says how large their noise is.
+        """
+        relative = getattr(self.settings, "relative_errors", None)
+        size = np.abs(np.asarray(self.predicted, dtype=float))
+        if relative is None or size.size == 0:
+            return np.ones(size.shape, dtype=bool)
+        return size >= relative.floor * size.max()
 
     def equivalent_adm(self, length: float | None = None) -> dict[str, Any] | None:
         """The closed–closed ADM equivalent to this fit, from the model's hook, with units.
