@@ -265,3 +265,41 @@ def test_gamma_reference_is_the_textbook_density():
     np.testing.assert_allclose(
         Unit.closed_closed(1.0, 7.5).exit_age(t), exit_age_closed(t, 1.0, 7.5), rtol=1e-15
     )
+
+
+def test_plots_draw_lines_responses_funnels_and_windows():
+    matplotlib = pytest.importorskip("matplotlib")
+    matplotlib.use("Agg")
+    from axialmix.line import (
+        Disturbance,
+        conservative_diversion_window,
+        funnel,
+        outlet_response,
+        plot_diversion,
+        plot_funnel,
+        plot_line,
+        plot_response,
+    )
+
+    sample_times = np.arange(0.0, 31.0, 1.0)
+    feeder = Unit.empirical(sample_times, sample_times * np.exp(-sample_times / 4.0),
+                            name="feeder")
+
+    def line_for(parameters):  # a measured feeder curve, a fitted blender, a transfer line
+        return Line(feeder, Unit.closed_closed(parameters[0], parameters[1]),
+                    Unit.tanks(10.0, 3.0))
+
+    line = line_for(jnp.array([60.0, 30.0]))
+    t = np.linspace(0.0, 400.0, 201)
+    ax = plot_line(line, t)
+    assert [text.get_text() for text in ax.get_legend().get_texts()] == [
+        "feeder", "closed_closed", "tanks", "line"]
+    plot_response(outlet_response(line, Disturbance.ramp(0.1, 20.0, 10.0), t))
+    plot_funnel(funnel(line, [5.0, 20.0, 80.0], [0.1, 0.2, 0.3], magnitude_unit="%"))
+    window = conservative_diversion_window(
+        line_for, [60.0, 30.0], np.diag([4.0, 9.0]), Disturbance.square(0.2, 30.0, 10.0), t,
+        target=1.0, lower=0.97, upper=1.03, samples=20,
+    )
+    assert window.start <= window.nominal.start and window.stop >= window.nominal.stop
+    plot_diversion(window)
+    matplotlib.pyplot.close("all")

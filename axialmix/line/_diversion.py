@@ -411,7 +411,7 @@ def conservative_diversion_window(
     target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
     starts, stops, diverts, finite = _sample_windows(
         unit_factory, parameters, disturbance, times, target, lower, upper, flow,
-        lag_horizon(disturbance, times),
+        float(lag_horizon(disturbance, times)),  # static: a measured curve's grid needs it
     )
     starts = jnp.where(finite, jnp.where(diverts, starts, jnp.inf), jnp.nan)
     stops = jnp.where(finite, jnp.where(diverts, stops, -jnp.inf), jnp.nan)

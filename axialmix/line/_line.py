@@ -240,7 +240,11 @@ class Line(eqx.Module):
         A :class:`TabulatedRTD` (evaluate it at many times without recomputing the line).
         """
         require_finite("horizon", horizon)
-        horizon = jnp.maximum(jnp.asarray(horizon, float), jnp.finfo(float).tiny)
+        concrete = concrete_value(horizon)
+        if concrete is not None:  # stays concrete inside a trace (a measured curve needs it)
+            horizon = np.maximum(np.asarray(concrete, float), np.finfo(float).tiny)
+        else:
+            horizon = jnp.maximum(jnp.asarray(horizon, float), jnp.finfo(float).tiny)
         step, intervals = self._grid(horizon)
         exit_age, cumulative, ramp = _tabulate(self.units, step, intervals)
         return TabulatedRTD(
