@@ -75,6 +75,10 @@ TIME_UNIT_SECONDS = {"s": 1.0, "ms": 1e-3, "min": 60.0, "h": 3600.0}
 #: Smallest peak and largest value accepted: below, normalising underflows (denormal
 #: numbers lose their precision); above, areas and squared residuals overflow float64.
 SMALLEST_PEAK, LARGEST_VALUE = 1e-200, 1e200
+#: Shortest and longest span of sample times accepted (in the file's unit): E is about
+#: 1/span and its derivative in the time scale about 1/span², so beyond these the squared
+#: residuals and the curvature over- or underflow float64.
+TIME_SPAN_RANGE = (1e-100, 1e100)
 
 
 def seconds_per(time_unit: str) -> float:
@@ -275,7 +279,7 @@ def read_rtd_csv(
         kind = "repeated" if time[bad + 1] == time[bad] else "not increasing"
         problems.append((bad + 1, f"times not increasing ({time[bad + 1]:g} after "
                          f"{time[bad]:g}; {kind})"))
-    bad = _first(np.abs(data) > LARGEST_VALUE)
+    bad = _first(np.any(np.abs(data) > LARGEST_VALUE, axis=1))  # the row, not the cell
     if bad is not None:
         problems.append((bad, f"value {np.max(np.abs(data[bad])):g} is too large (above "
                          f"{LARGEST_VALUE:g}); rescale the column"))
@@ -285,6 +289,11 @@ def read_rtd_csv(
     if len(time) < min_points:
         raise DataError(path, f"too few points: {len(time)} data rows, at least {min_points} "
                         "needed")
+    span = float(time[-1] - time[0])
+    if not TIME_SPAN_RANGE[0] <= span <= TIME_SPAN_RANGE[1]:
+        raise DataError(path, f"the times span {span:.3g} {time_unit}, outside "
+                        f"{TIME_SPAN_RANGE[0]:g} to {TIME_SPAN_RANGE[1]:g} {time_unit}: a model's "
+                        "values and derivatives would over- or underflow; rescale the time column")
     if baseline == "first":
         value = value - value[0]
     elif baseline == "min":
@@ -373,8 +382,8 @@ def input_files(inputs: Iterable[str | Path], pattern: str = "*.csv") -> list[Pa
 
     **Returns:** the files, folders expanded in file-name order.
 
-    **Raises:** :class:`DataError` for a missing path, an empty folder, or two files with
-    the same name (their results would overwrite each other).
+    **Raises:** :class:`DataError` for a missing path, an empty folder, a file given twice,
+    or two files with the same name (their results would overwrite each other).
     """
     files: list[Path] = []
     for item in inputs:
@@ -389,11 +398,15 @@ def input_files(inputs: Iterable[str | Path], pattern: str = "*.csv") -> list[Pa
             files.append(path)
         else:
             raise DataError(path, "file not found")
-    stems = [p.stem for p in files]
-    repeated = sorted({s for s in stems if stems.count(s) > 1})
-    if repeated:
-        raise DataError(repeated[0], "several input files share this name; results would "
-                        "overwrite each other")
+    seen: dict[str, Path] = {}
+    for path in files:
+        first = seen.setdefault(path.stem, path)
+        if first is path:
+            continue
+        if first.resolve() == path.resolve():
+            raise DataError(path, "given twice")
+        raise DataError(path, f"has the name {path.stem!r} of {first} too; their results "
+                        "would overwrite each other")
     return files
 
 

@@ -376,7 +376,8 @@ def network_model(
 
     **Arguments:**
 
-    - `network_file`: a network JSON file (:meth:`axialmix.network.CompartmentNetwork.to_json`).
+    - `network_file`: a network JSON file (:meth:`axialmix.network.CompartmentNetwork.to_json`),
+      or a TOML file of the same layout (``.toml``).
     - `parameter_names`: the parameters to fit (rate names, or keys of `groups`); by default
       every key of `groups`, or every rate of the file.
     - `groups`: parameter name -> rate names it sets.
@@ -387,7 +388,9 @@ def network_model(
     A :class:`Model` with positive rate parameters (1/time; per step for discrete networks),
     started at the file's values, with :data:`NETWORK_STARTS` starts by default.
     """
-    network = CompartmentNetwork.from_json(network_file)
+    network = (CompartmentNetwork.from_toml(network_file)
+               if Path(network_file).suffix.lower() == ".toml"
+               else CompartmentNetwork.from_json(network_file))
     labels = [(f"k_{c.source}_{c.target}", ("connection", i))
               for i, c in enumerate(network.connections)]
     labels += [(f"k_out_{o.compartment}", ("outflow", j)) for j, o in enumerate(network.outlets)]

@@ -1,7 +1,7 @@
 """The ``axialmix fit`` sub-command: fit residence-time curves from CSV files.
 
     axialmix fit FILE_OR_FOLDER... --model adm|adm-fv|adm-open|tanks|four-compartment|NET.json
-                 (or several, comma-separated, to compare them)
+                 (a network file may be .toml; several models, comma-separated, to compare)
                  [--fix NAME=VALUE] [--tie NAME=OTHER] [--loss sse|mae] [--grid] [--starts N]
                  [--errors absolute|relative] [--length METRES] --out DIR
 
@@ -106,8 +106,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         "any case)")
     parser.add_argument("--model", default="adm",
                         help="adm, adm-fv, adm-open, tanks, four-compartment, or a network "
-                        "JSON file (default: adm); several, comma-separated (adm,tanks), "
-                        "are fitted and compared in one table")
+                        "file (.json or .toml) (default: adm); several, comma-separated "
+                        "(adm,tanks), are fitted and compared in one table")
     parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                         help="hold a parameter at a value (repeatable)")
     parser.add_argument("--tie", action="append", default=[], metavar="NAME=OTHER",
@@ -140,7 +140,7 @@ def _model(name: str):
     if name in MODELS:
         return MODELS[name]
     path = Path(name)
-    if path.suffix.lower() == ".json":
+    if path.suffix.lower() in (".json", ".toml"):
         if not path.is_file():
             raise InputError(f"{path}: network file not found")
         try:
@@ -148,7 +148,7 @@ def _model(name: str):
         except (ValueError, KeyError, TypeError, OSError, AttributeError) as error:
             raise InputError(f"{path}: {' '.join(str(error).split())}") from None
     raise InputError(f"--model: unknown model {name!r}; choose one of {', '.join(MODELS)} "
-                     "or give a network JSON file")
+                     "or give a network file (.json or .toml)")
 
 
 def _models(text: str) -> list:
