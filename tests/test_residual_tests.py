@@ -57,3 +57,17 @@ def test_lag1_autocorrelation_permutation_p_is_calibrated_for_independent_noise(
 def test_signless_residuals_say_nothing():
     assert runs_test(np.zeros(10)).p == 1.0
     assert runs_test(np.ones(10)).p == 1.0
+
+
+@pytest.mark.parametrize("null", ["signs", "order"])
+def test_lag1_autocorrelation_p_in_blocks_of_draws_equals_all_draws_at_once(null, monkeypatch):
+    # Long residual series are randomised a few draws at a time (bounded memory); the draws
+    # are the same numbers in the same order, so the probability is exactly that of one batch.
+    import fitting.residuals as residuals
+
+    rng = np.random.default_rng(6)
+    e = rng.normal(size=300) + 0.3 * np.sin(np.arange(300) / 7)
+    at_once = lag1_autocorrelation_p(e, permutations=999, seed=2, null=null)
+    monkeypatch.setattr(residuals, "DRAW_BLOCK_ELEMENTS", 7 * e.size)  # 7 draws per block
+    assert lag1_autocorrelation_p(e, permutations=999, seed=2, null=null) == at_once
+    assert 1 / 1000 < at_once < 1  # neither trivial bound
