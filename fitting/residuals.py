@@ -26,8 +26,11 @@ called systematic when either test, or, where the noise level is known, the scal
 sum of squares, is significant at :data:`LACK_OF_FIT_LEVEL`. Fit residuals are not
 independent noise even when the model is right: ``p`` fitted parameters remove ``p`` smooth
 components, which makes neighbouring residuals slightly anti-correlated and both tests
-conservative; the false-alarm rate on fits of curves the model describes is measured by
-``tests/test_lack_of_fit_study.py``.
+conservative. Measured false-alarm rates (``tests/test_lack_of_fit_study.py``: fits of noisy
+exact closed–closed ADM curves, tau 40 s, Pe log-uniform in 2–50, 200 curves per setting):
+with 2 % additive noise and unweighted fits 1.5, 1.0, 1.0 and 1.5 % at 15, 30, 60 and 200
+points; with 3 % proportional noise and relative-error fits 0.5, 1.5, 2.5 and 3.0 % (1,000
+curves each at 60 and 200 points: 0.7 and 1.0 %).
 """
 
 from __future__ import annotations
