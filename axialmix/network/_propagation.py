@@ -29,6 +29,10 @@ __all__ = [
 ]
 
 
+#: Times per block when each interval has its own transition matrix (see :func:`_propagate`).
+BLOCK = 4096
+
+
 def uniform_spacing(increments: np.ndarray | None) -> bool:
     if increments is None or increments.size < 3:
         return False
@@ -55,13 +59,27 @@ def _propagate(
 
         _, rest = jax.lax.scan(step, first, None, length=increments.shape[0] - 1)
     else:
-        matrices = jax.vmap(transition)(increments[1:])
 
         def step(state, matrix):
             new = matrix @ state
             return new, new
 
-        _, rest = jax.lax.scan(step, first, matrices)
+        def propagate(state, block_increments):
+            return jax.lax.scan(step, state, jax.vmap(transition)(block_increments))
+
+        count = increments.shape[0] - 1
+        if count <= BLOCK:
+            _, rest = propagate(first, increments[1:])
+        else:
+            # One matrix per time, all at once, keeps every exponential's intermediates for
+            # reverse mode (5 kB per time for four compartments). In blocks, each recomputed
+            # in the backward pass, memory stays that of one block. Padding increments are
+            # zero: an identity step, after the last real time.
+            blocks = -(-count // BLOCK)
+            padded = jnp.pad(increments[1:], (0, blocks * BLOCK - count))
+            _, rest = jax.lax.scan(jax.checkpoint(propagate), first,
+                                   padded.reshape(blocks, BLOCK))
+            rest = rest.reshape(blocks * BLOCK, *first.shape)[:count]
     return jnp.concatenate([first[None], rest], axis=0)
 
 
