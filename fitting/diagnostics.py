@@ -379,16 +379,19 @@ def _criteria(result: FitResult) -> tuple[float, int, float, float]:
 
     The weights are taken as inverse variances up to one common factor, estimated by maximum
     likelihood: ``-2 ln L = n ln(2π Σwr²/n) + n - Σ ln w_i`` over the points with ``w > 0``.
-    The ``Σ ln w`` term matters when the weights depend on the model (relative errors); for
-    weights shared by all models it is a common constant. ``K`` counts the free parameters and
-    the variance factor; ``AICc = -2 ln L + 2K + 2K(K+1)/(n-K-1)`` (``nan`` for ``n <= K+1``),
+    The ``Σ ln w`` term matters when the weights depend on the model (relative or combined
+    errors); for weights shared by all models it is a common constant. ``K`` counts the free
+    parameters and the error model's: one (the variance factor), two for additive plus
+    proportional errors (``a`` and ``b``, estimated with each fit);
+    ``AICc = -2 ln L + 2K + 2K(K+1)/(n-K-1)`` (``nan`` for ``n <= K+1``),
     ``BIC = -2 ln L + K ln n``.
     """
     weights = np.asarray(result.weights, dtype=float)
     used = weights > 0
     n = int(np.count_nonzero(used))
     sse = float(np.sum(weights[used] * np.asarray(result.residuals)[used] ** 2))
-    k = len(result.free_names) + 1
+    error_model = getattr(result, "error_model", None)
+    k = len(result.free_names) + (2 if getattr(error_model, "kind", None) == "combined" else 1)
     if n == 0 or not (math.isfinite(sse) and sse > 0):
         return math.nan, k, math.nan, math.nan
     minus_two_log_l = (n * math.log(2 * math.pi * sse / n) + n
@@ -403,7 +406,8 @@ class ModelComparison:
     """Fits of several models to one curve, ranked by AICc, with their lack-of-fit verdicts.
 
     - `results`: the fits, in the order given; `names`: their model names.
-    - `n_parameters`: ``K`` of each (free parameters plus the variance factor).
+    - `n_parameters`: ``K`` of each (free parameters plus the error model's: one, the
+      variance factor; two for additive plus proportional errors).
     - `log_likelihood`, `aicc`, `bic`: Gaussian criteria (see :func:`compare_models`);
       lower AICc and BIC are better, only differences between models mean anything.
     - `delta_aicc`: AICc minus the lowest AICc of the compared fits (``nan`` for fits not
@@ -544,7 +548,8 @@ def compare_models(results: Sequence[FitResult]) -> ModelComparison:
     The criteria are Gaussian likelihoods of the least-squares fits, with the fits' weights
     as inverse variances up to a common factor estimated by maximum likelihood (so
     relative-error fits, whose weights follow each model's own curve, are compared on one
-    footing): ``-2 ln L = n ln(2π Σwr²/n) + n - Σ ln w``, ``K`` = free parameters + 1,
+    footing): ``-2 ln L = n ln(2π Σwr²/n) + n - Σ ln w``, ``K`` = free parameters + 1 (+ 2
+    for additive plus proportional errors),
     ``AICc = -2 ln L + 2K + 2K(K+1)/(n-K-1)``, ``BIC = -2 ln L + K ln n``. (Fits on the
     mean absolute error are scored by their ``Σ w r²`` all the same.)
 

@@ -430,8 +430,8 @@ def comparison_table(comparison: ModelComparison) -> str:
         ])
     first = comparison.results[0]
     title = (f"{first.name or 'curve'}: {len(comparison.results)} models, {first.n_points} "
-             f"points, times in {first.time_unit} (K = free parameters + 1 for the noise "
-             "level; lower AICc and BIC are better)")
+             f"points, times in {first.time_unit} (K = free parameters + the error model's; "
+             "lower AICc and BIC are better)")
     return "\n".join([title, text_table(header, rows),
                       f"Recommendation: {comparison.recommendation}"])
 
