@@ -5,10 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.integrate import quad
-from scipy.special import gamma as gamma_function
 
 from axialmix import rtd
-from axialmix.analytic import exit_age_closed, step_response_closed
 from axialmix.line import Line, LineSettings, Unit
 from axialmix.network import four_compartment, tanks_in_series
 
@@ -17,23 +15,28 @@ TANK = Unit.tanks(0.5, 1.0, name="hopper")
 TIMES = np.linspace(0.0, 4.0, 401)
 
 
-def _scalar(function):
-    return lambda x: float(function(np.array([x]))[0])
+def _gauss(function, upper, panels):
+    """∫_0^upper f by composite 12-point Gauss–Legendre quadrature, one vectorised call of f.
+
+    Independent of the package's grids and rules; the panels used below are at most a tenth
+    of the narrowest spread of the curves integrated, which makes the rule exact to round-off
+    for these smooth (or, at t = 0, one-sided) integrands.
+    """
+    nodes, weights = np.polynomial.legendre.leggauss(12)
+    edges = np.linspace(0.0, upper, panels + 1)
+    half = np.diff(edges)[:, None] / 2
+    points = (edges[:-1, None] + half * (nodes + 1)).ravel()
+    return float(np.sum((half * weights).ravel() * np.asarray(function(points))))
 
 
-def _numerical_convolution(first, second, t):
-    """∫_0^t E1(t - s) E2(s) ds by adaptive quadrature (independent of the line's grid)."""
-    e1, e2 = _scalar(first), _scalar(second)
-    value, _ = quad(lambda s: e1(t - s) * e2(s), 0.0, t, limit=400, epsabs=1e-14,
-                    epsrel=1e-13, points=[max(t - 1.0, 0.0)])
-    return value
+def _numerical_convolution(first, second, t, panels=400):
+    """∫_0^t E1(t - s) E2(s) ds by Gauss–Legendre quadrature (see :func:`_gauss`)."""
+    return _gauss(lambda s: np.asarray(first(t - s)) * np.asarray(second(s)), t, panels)
 
 
 def _laplace(unit, s, upper):
     """Numerical Laplace transform of a unit's E for real s (independent of G)."""
-    e = _scalar(unit.exit_age)
-    value, _ = quad(lambda t: e(t) * np.exp(-s * t), 0.0, upper, limit=800, epsabs=1e-14)
-    return value
+    return _gauss(lambda t: np.asarray(unit.exit_age(t)) * np.exp(-s * t), upper, 2000)
 
 
 # ------------------------------------------------------------------ units
@@ -62,9 +65,8 @@ def test_transfer_function_equals_numerical_laplace_transform_of_exit_age(unit, 
     ],
 )
 def test_unit_moments_equal_quadrature_of_exit_age(unit, upper):
-    e = _scalar(unit.exit_age)
-    mean = quad(lambda t: t * e(t), 0.0, upper, limit=800)[0]
-    second = quad(lambda t: (t - mean) ** 2 * e(t), 0.0, upper, limit=800)[0]
+    mean = _gauss(lambda t: t * np.asarray(unit.exit_age(t)), upper, 2000)
+    second = _gauss(lambda t: (t - mean) ** 2 * np.asarray(unit.exit_age(t)), upper, 2000)
     assert float(unit.mean()) == pytest.approx(mean, rel=1e-9)
     assert float(unit.variance()) == pytest.approx(second, rel=1e-8)
 
@@ -87,33 +89,26 @@ def test_moments_from_transfer_function_match_the_closed_forms():
 
 
 @pytest.mark.parametrize(
-    "unit",
-    [Unit.closed_closed(1.0, 50.0), Unit.open_open(1.0, 20.0), Unit.tanks(1.0, 2.5),
-     Unit.network(tanks_in_series(3, 1.0))],
+    "unit", [Unit.closed_closed(1.0, 50.0), Unit.open_open(1.0, 20.0), Unit.tanks(1.0, 2.5)]
 )
 def test_ramp_response_is_the_integral_of_the_cumulative_distribution(unit):
-    f = _scalar(unit.cumulative)
-    times = np.array([0.3, 0.9, 1.1, 2.5, 6.0])
-    expected = [quad(f, 0.0, t, limit=400, epsabs=1e-14, epsrel=1e-13)[0] for t in times]
-    np.testing.assert_allclose(unit.ramp_response(times), expected, rtol=1e-10, atol=1e-13)
-
-
-def test_ramp_response_tends_to_time_minus_mean():
+    times = np.array([0.3, 0.9, 1.1, 2.5, 6.0, 20.0])
+    expected = [_gauss(unit.cumulative, t, 400) for t in times]
+    # Romberg over [0, 20] where no closed form exists: about 1e-12 of the span, as documented.
+    np.testing.assert_allclose(unit.ramp_response(times), expected, rtol=1e-12, atol=2e-11)
     # ∫_0^t F = t - mean + ∫_t^∞ (1 - F): exactly t - mean once the RTD has ended.
-    unit = Unit.closed_closed(2.0, 30.0)
-    assert float(unit.ramp_response(np.array([20.0]))[0]) == pytest.approx(18.0, rel=1e-12)
+    assert float(unit.ramp_response(times)[-1]) == pytest.approx(20.0 - float(unit.mean()),
+                                                                 rel=1e-12)
 
 
 def test_network_unit_of_equal_tanks_equals_the_gamma_unit():
+    # E, G and the moments of network units are checked against quadrature above; here the
+    # cumulative curves: F and the ramp response (an augmented matrix exponential).
     network_unit = Unit.network(tanks_in_series(3, 2.0))
     gamma_unit = Unit.tanks(2.0, 3.0)
     t = np.array([0.1, 0.7, 2.0, 5.0])
-    np.testing.assert_allclose(network_unit.exit_age(t), gamma_unit.exit_age(t), rtol=1e-12)
     np.testing.assert_allclose(network_unit.cumulative(t), gamma_unit.cumulative(t), rtol=1e-12)
     np.testing.assert_allclose(network_unit.ramp_response(t), gamma_unit.ramp_response(t),
-                               rtol=1e-12)
-    s = np.array([0.2 + 0.5j, 3.0])
-    np.testing.assert_allclose(network_unit.transfer_function(s), gamma_unit.transfer_function(s),
                                rtol=1e-12)
 
 
@@ -253,20 +248,6 @@ def test_unit_rejects_bad_parameters_with_one_line():
         Unit.network(tanks_in_series(2, 1.0, time_step=0.1))
 
 
-def test_gamma_reference_is_the_textbook_density():
-    # Guards the helper used above: the tanks unit is the gamma density of MODELS.md §3.
-    t = np.array([0.3, 1.0, 2.0])
-    n, tau = 3.0, 1.5
-    expected = (n / tau) ** n * t ** (n - 1) * np.exp(-n * t / tau) / gamma_function(n)
-    np.testing.assert_allclose(Unit.tanks(tau, n).exit_age(t), expected, rtol=1e-13)
-    np.testing.assert_allclose(
-        Unit.closed_closed(1.0, 7.5).cumulative(t), step_response_closed(t, 1.0, 7.5), rtol=1e-15
-    )
-    np.testing.assert_allclose(
-        Unit.closed_closed(1.0, 7.5).exit_age(t), exit_age_closed(t, 1.0, 7.5), rtol=1e-15
-    )
-
-
 def test_plots_draw_lines_responses_funnels_and_windows():
     matplotlib = pytest.importorskip("matplotlib")
     matplotlib.use("Agg")
@@ -285,20 +266,20 @@ def test_plots_draw_lines_responses_funnels_and_windows():
     feeder = Unit.empirical(sample_times, sample_times * np.exp(-sample_times / 4.0),
                             name="feeder")
 
-    def line_for(parameters):  # a measured feeder curve, a fitted blender, a transfer line
-        return Line(feeder, Unit.closed_closed(parameters[0], parameters[1]),
-                    Unit.tanks(10.0, 3.0))
+    def line_for(parameters):  # a measured feeder curve and a fitted blender
+        return Line(feeder, Unit.tanks(parameters[0], parameters[1]))
 
-    line = line_for(jnp.array([60.0, 30.0]))
-    t = np.linspace(0.0, 400.0, 201)
+    line = line_for(jnp.array([60.0, 3.0]))
+    t = np.linspace(0.0, 300.0, 101)
     ax = plot_line(line, t)
     assert [text.get_text() for text in ax.get_legend().get_texts()] == [
-        "feeder", "closed_closed", "tanks", "line"]
+        "feeder", "tanks", "line"]
     plot_response(outlet_response(line, Disturbance.ramp(0.1, 20.0, 10.0), t))
     plot_funnel(funnel(line, [5.0, 20.0, 80.0], [0.1, 0.2, 0.3], magnitude_unit="%"))
+    # The fit-uncertainty route vmaps lines that hold a measured curve.
     window = conservative_diversion_window(
-        line_for, [60.0, 30.0], np.diag([4.0, 9.0]), Disturbance.square(0.2, 30.0, 10.0), t,
-        target=1.0, lower=0.97, upper=1.03, samples=20,
+        line_for, [60.0, 3.0], np.diag([4.0, 0.01]), Disturbance.square(0.2, 30.0, 10.0), t,
+        target=1.0, lower=0.97, upper=1.03, samples=4,
     )
     assert window.start <= window.nominal.start and window.stop >= window.nominal.stop
     plot_diversion(window)

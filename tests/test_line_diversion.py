@@ -41,6 +41,7 @@ def test_window_of_a_stirred_tank_is_exact(magnitude):
     assert float(window.stop) == pytest.approx(stop, rel=1e-12)
     assert float(window.diverted_amount) == pytest.approx(12.0 * (stop - start), rel=1e-12)
     assert window.amount_unit == "kg"
+    assert window.to_dict()["stop"] == pytest.approx(stop, rel=1e-12)
 
 
 def test_diverted_amount_follows_a_flow_trace():
@@ -153,6 +154,9 @@ def test_conservative_windows_of_a_stirred_tank_follow_its_closed_form():
     assert float(region.diverted_amount) == pytest.approx(2.0 * (high[1] - low[0]), rel=1e-12)
     nominal = closed_form(TAU)
     assert float(region.nominal.start) == pytest.approx(nominal[0], rel=1e-12)
+    summary = region.to_dict()
+    assert summary["conservative"]["start"] == pytest.approx(low[0], rel=1e-12)
+    assert (summary["method"], summary["coverage"]) == ("region", 0.95)
     quantile = conservative_diversion_window(
         _stirred_tank, [TAU], [[sd**2]], disturbance, times, coverage=0.95, samples=4000,
         method="quantile", seed=3, **LIMITS,
@@ -172,12 +176,12 @@ def test_region_window_covers_the_windows_of_normal_draws_of_the_parameters():
     disturbance = Disturbance.square(0.2, 20.0, 10.0)
     times = np.linspace(0.0, 300.0, 151)
     reference = diversion_window(_closed_closed(true), disturbance, times, **LIMITS)
-    estimates = np.random.default_rng(7).multivariate_normal(true, covariance, 30)
+    estimates = np.random.default_rng(7).multivariate_normal(true, covariance, 10)
     inside = covered = 0
     for estimate in estimates:
         window = conservative_diversion_window(
             _closed_closed, estimate, covariance, disturbance, times, coverage=0.95,
-            samples=100, **LIMITS,
+            samples=64, **LIMITS,
         )
         distance = (true - estimate) @ np.linalg.solve(covariance, true - estimate)
         truth_in_region = distance <= 5.991464547107979  # chi²_2(0.95)

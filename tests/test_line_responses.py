@@ -19,7 +19,7 @@ from axialmix.line import (
 )
 
 DURATIONS = np.array([0.125, 0.375, 1.0, 3.0])  # multiples of rtdpy's step 2**-10
-MAGNITUDES = np.array([-1.0, 0.5, 2.0])
+MAGNITUDES = np.array([-1.0, 2.0])
 
 
 # ------------------------------------------------------------------ funnel
@@ -83,16 +83,16 @@ def test_funnel_of_a_line_and_its_units():
     result = funnel(line, DURATIONS, MAGNITUDES, magnitude_unit="%")
     assert result.max_deviation.shape == (MAGNITUDES.size, DURATIONS.size)
     np.testing.assert_allclose(result.max_deviation, MAGNITUDES[:, None] * result.max_fraction)
-    # The line damps more than each unit alone, and a long square passes completely.
-    for unit in line.units:
-        assert np.all(np.asarray(result.max_fraction) < np.asarray(
-            funnel(unit, DURATIONS, [1.0]).max_fraction))
-    long = funnel(line, [40.0], [1.0])
-    assert float(long.max_fraction[0]) == pytest.approx(1.0, abs=1e-9)
+    # The line damps more than its blender alone, and a long square passes completely.
+    alone = funnel(line.units[0], DURATIONS, MAGNITUDES).max_fraction
+    assert np.all(np.asarray(result.max_fraction) < np.asarray(alone))
+    long = funnel(line, np.full(DURATIONS.size, 40.0), MAGNITUDES)
+    np.testing.assert_allclose(long.max_fraction, 1.0, atol=1e-9)
     assert result.to_dict()["max_deviation"] == np.asarray(result.max_deviation).tolist()
     assert result.to_dict()["magnitude_unit"] == "%"
 
 
+@pytest.mark.study
 def test_funnel_differentiates_in_the_model_parameters():
     def worst(peclet):
         return funnel(Unit.closed_closed(1.0, peclet), [0.375], [1.0],
@@ -200,6 +200,7 @@ def test_vrr_from_the_transfer_function_equals_the_discrete_white_noise_formula(
     assert linear == pytest.approx(1.0 / (dt * integral), rel=1e-3)
 
 
+@pytest.mark.study
 def test_series_vrr_of_simulated_white_noise_matches_the_linear_hold_formula():
     unit = Unit.tanks(20.0, 3.0)
     dt = 1.0

@@ -76,6 +76,29 @@ class DiversionWindow(eqx.Module):
     content_unit: str = eqx.field(static=True, default="")
     amount_unit: str = eqx.field(static=True, default="")
 
+    def to_dict(self) -> dict:
+        """Plain JSON-ready dict of the window (NaN and infinities as None and "inf")."""
+        return {
+            "diverts": bool(self.diverts),
+            "start": _number(self.start),
+            "stop": _number(self.stop),
+            "diverted_amount": _number(self.diverted_amount),
+            "lower": _number(self.lower),
+            "upper": _number(self.upper),
+            "time_unit": self.time_unit,
+            "content_unit": self.content_unit,
+            "amount_unit": self.amount_unit,
+        }
+
+
+def _number(value) -> float | str | None:
+    number = float(value)
+    if np.isnan(number):
+        return None
+    if np.isinf(number):
+        return "inf" if number > 0 else "-inf"
+    return number
+
 
 def _amount(flow, start: Array, stop: Array) -> Array:
     if isinstance(flow, FlowSchedule):
@@ -332,6 +355,24 @@ class ConservativeDiversion(eqx.Module):
     valid_samples: int = eqx.field(static=True)
     time_unit: str = eqx.field(static=True, default="s")
     amount_unit: str = eqx.field(static=True, default="")
+
+    def to_dict(self) -> dict:
+        """Plain JSON-ready dict: the nominal and the conservative window and how it was made."""
+        return {
+            "nominal": self.nominal.to_dict(),
+            "conservative": {
+                "start": _number(self.start),
+                "stop": _number(self.stop),
+                "diverted_amount": _number(self.diverted_amount),
+            },
+            "coverage": self.coverage,
+            "method": self.method,
+            "samples": int(self.sample_parameters.shape[0]),
+            "valid_samples": self.valid_samples,
+            "diverting_fraction": float(self.diverting_fraction),
+            "time_unit": self.time_unit,
+            "amount_unit": self.amount_unit,
+        }
 
 
 @eqx.filter_jit

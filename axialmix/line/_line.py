@@ -192,28 +192,73 @@ class Line(eqx.Module):
         return sum(unit.variance() for unit in self.units)
 
     def transfer_function(self, s: ArrayLike) -> Array:
-        """Transfer function of the line: the product of the units' (s in 1/time unit)."""
+        """Transfer function of the line: the product of its units' transfer functions.
+
+        **Arguments:**
+
+        - `s`: Laplace variable (1/time unit), real or complex, any shape.
+
+        **Returns:**
+
+        Complex G, the shape of `s`.
+        """
         result = self.units[0].transfer_function(s)
         for unit in self.units[1:]:
             result = result * unit.transfer_function(s)
         return result
 
     def frequency_response(self, omega: ArrayLike) -> Array:
-        """Amplitude ratio ``|G(i omega)|`` of the line (omega in rad per time unit)."""
+        """Amplitude ratio ``|G(i omega)|`` of the line.
+
+        **Arguments:**
+
+        - `omega`: angular frequencies (rad per time unit), any shape.
+
+        **Returns:**
+
+        ``|G(i omega)|`` (dimensionless), the shape of `omega`.
+        """
         require_finite("omega", omega)
         return jnp.abs(self.transfer_function(1j * jnp.asarray(omega, float)))
 
     # ------------------------------------------------------------------ curves
     def exit_age(self, t: ArrayLike) -> Array:
-        """Exit-age density E(t) of the line at times of any shape (1/time unit)."""
+        """Exit-age density E(t) of the line, computed on a grid over ``[0, max t]``.
+
+        **Arguments:**
+
+        - `t`: times (time unit), any shape; concrete if the line holds a measured curve.
+
+        **Returns:**
+
+        E (1/time unit), the shape of `t`.
+        """
         return self._curve("exit_age", t)
 
     def cumulative(self, t: ArrayLike) -> Array:
-        """Cumulative distribution F(t) of the line (dimensionless)."""
+        """Cumulative distribution F(t) of the line, computed on a grid over ``[0, max t]``.
+
+        **Arguments:**
+
+        - `t`: times (time unit), any shape; concrete if the line holds a measured curve.
+
+        **Returns:**
+
+        F (dimensionless), the shape of `t`.
+        """
         return self._curve("cumulative", t)
 
     def ramp_response(self, t: ArrayLike) -> Array:
-        """Response ``∫_0^t F`` of the line to a unit-slope inlet ramp from t = 0 (time unit)."""
+        """Response ``∫_0^t F`` of the line to an inlet ramp of unit slope from t = 0.
+
+        **Arguments:**
+
+        - `t`: times (time unit), any shape; concrete if the line holds a measured curve.
+
+        **Returns:**
+
+        R (time unit), the shape of `t`.
+        """
         return self._curve("ramp", t)
 
     def _curve(self, kind: str, t: ArrayLike) -> Array:
@@ -304,8 +349,10 @@ class Line(eqx.Module):
             while sample_step / subdivisions > float(smallest) / 16 and subdivisions < 1024:
                 subdivisions *= 2
         step = sample_step / subdivisions
-        intervals = max(16, math.ceil(float(horizon) / step - 1e-9))
-        return step, intervals
+        needed = max(16, math.ceil(float(horizon) / step - 1e-9))
+        # A power of two: the FFTs pad to one anyway, and nearby horizons share one compiled
+        # tabulation.
+        return step, 1 << (needed - 1).bit_length()
 
 
 @eqx.filter_jit

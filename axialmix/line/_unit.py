@@ -299,33 +299,77 @@ class Unit(eqx.Module):
 
     # ------------------------------------------------------------------ curves
     def exit_age(self, t: ArrayLike) -> Array:
-        """Exit-age density E(t) at times of any shape (1/time unit; 0 before t = 0)."""
+        """Exit-age density E(t) of the unit, exact.
+
+        **Arguments:**
+
+        - `t`: times (time unit), any shape and order.
+
+        **Returns:**
+
+        E (1/time unit), the shape of `t`; 0 before t = 0.
+        """
         return _exit_age(self, _time_array("t", t))
 
     def cumulative(self, t: ArrayLike) -> Array:
-        """Cumulative distribution F(t) at times of any shape (dimensionless)."""
+        """Cumulative residence time distribution F(t) of the unit, exact.
+
+        **Arguments:**
+
+        - `t`: times (time unit), any shape and order.
+
+        **Returns:**
+
+        F (dimensionless), the shape of `t`; 0 up to t = 0.
+        """
         return _cumulative(self, _time_array("t", t))
 
     def ramp_response(self, t: ArrayLike) -> Array:
-        """Outlet response ``R(t) = ∫_0^t F`` to a unit-slope inlet ramp from t = 0 (time unit).
+        """Outlet response ``R(t) = ∫_0^t F`` to an inlet ramp of unit slope starting at t = 0.
 
         Exact where the model gives it (tanks, networks, measured curves); otherwise F is
         integrated on a grid over ``[0, max t]`` by Romberg's method (sixth order, typically
         1e-12 of ``max t``).
+
+        **Arguments:**
+
+        - `t`: times (time unit), any shape and order.
+
+        **Returns:**
+
+        R (time unit), the shape of `t`; 0 up to t = 0, ``t - mean`` once the RTD has ended.
         """
         t = _time_array("t", t)
         intervals = choose_intervals(jnp.max(t), self._spread(), DEFAULT_INTERVALS)
         return _ramp(self, t, intervals)
 
     def transfer_function(self, s: ArrayLike) -> Array:
-        """Transfer function ``G(s) = ∫ E(t) e^{-st} dt``, s complex in 1/time unit; G(0) = 1."""
+        """Transfer function ``G(s) = ∫ E(t) e^{-st} dt`` of the unit.
+
+        **Arguments:**
+
+        - `s`: Laplace variable (1/time unit), real or complex, any shape.
+
+        **Returns:**
+
+        Complex G, the shape of `s`; ``G(0) = 1``.
+        """
         if self.model.transfer_function is None:
             raise ValueError(f"the {self.model.name} model has no transfer function.")
         require_finite("s", s)
         return _transfer(self, jnp.asarray(s, complex))
 
     def frequency_response(self, omega: ArrayLike) -> Array:
-        """Amplitude ratio ``|G(i omega)|`` at angular frequencies omega (rad per time unit)."""
+        """Amplitude ratio ``|G(i omega)|``: the share of a feed oscillation that passes.
+
+        **Arguments:**
+
+        - `omega`: angular frequencies (rad per time unit), any shape.
+
+        **Returns:**
+
+        ``|G(i omega)|`` (dimensionless, 1 at omega = 0), the shape of `omega`.
+        """
         require_finite("omega", omega)
         return jnp.abs(self.transfer_function(1j * jnp.asarray(omega, float)))
 
