@@ -4,10 +4,10 @@ Importing :mod:`axialmix` switches JAX to double precision
 (``jax.config.update("jax_enable_x64", True)``): every model in the package is
 written and tested in float64, and tolerances of 1e-8 and tighter need it.
 
-The subpackages (:mod:`~axialmix.analytic`, :mod:`~axialmix.adm`, :mod:`~axialmix.network`,
-:mod:`~axialmix.particles`, :mod:`~axialmix.reference`, :mod:`~axialmix.rtd`,
-:mod:`~axialmix.trajectories`) are loaded on first use, so ``import axialmix`` costs only
-the import of JAX.
+The subpackages (:mod:`~axialmix.analytic`, :mod:`~axialmix.adm`, :mod:`~axialmix.line`,
+:mod:`~axialmix.network`, :mod:`~axialmix.particles`, :mod:`~axialmix.reference`,
+:mod:`~axialmix.rtd`, :mod:`~axialmix.trajectories`) are loaded on first use, so
+``import axialmix`` costs only the import of JAX.
 """
 
 import importlib
@@ -18,7 +18,9 @@ jax.config.update("jax_enable_x64", True)
 
 __version__ = "0.1.0"
 
-_SUBPACKAGES = ("adm", "analytic", "network", "particles", "reference", "rtd", "trajectories")
+_SUBPACKAGES = (
+    "adm", "analytic", "line", "network", "particles", "reference", "rtd", "trajectories"
+)
 
 __all__ = ["__version__", *_SUBPACKAGES]
 
