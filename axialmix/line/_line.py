@@ -86,7 +86,8 @@ class TabulatedRTD(eqx.Module):
         return _table_ramp(self, jnp.asarray(t, float))
 
     def _exit_age(self, t: Array) -> Array:
-        inside = (t >= 0) & (t <= self.horizon)
+        # The horizon is step × N, which may round just below the latest time asked for.
+        inside = (t >= 0) & (t <= self.horizon + 1e-9 * self.step)
         return jnp.where(inside, _grid.interpolate(self.step, self.exit_age_values, t), 0.0)
 
     def _cumulative(self, t: Array) -> Array:
@@ -95,7 +96,9 @@ class TabulatedRTD(eqx.Module):
     def _ramp_response(self, t: Array) -> Array:
         inside = _grid.interpolate(self.step, self.ramp_values, t)
         beyond = self.ramp_values[-1] + (t - self.horizon) * self.cumulative_values[-1]
-        return jnp.where(t <= 0, 0.0, jnp.where(t > self.horizon, beyond, inside))
+        return jnp.where(
+            t <= 0, 0.0, jnp.where(t > self.horizon + 1e-9 * self.step, beyond, inside)
+        )
 
     def mean(self) -> Array:
         """Mean residence time (time unit)."""
