@@ -302,7 +302,7 @@ def enable_compilation_cache(folder: str | Path | None = None, exports: bool = T
       files in ``solvers`` in :func:`user_cache_folder`, so a later process loads them instead
       of tracing them (tracing is never cached by JAX itself).
 
-    **Returns:** the compilation-cache folder used.
+    **Returns:** the compilation-cache folder (left unused when it cannot be created).
     """
     global _EXPORT_FOLDER
     if folder is None:
@@ -310,7 +310,10 @@ def enable_compilation_cache(folder: str | Path | None = None, exports: bool = T
     if folder is None:
         folder = user_cache_folder() / "jax"
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:  # no writable cache folder: run without one
+        return folder
     jax.config.update("jax_compilation_cache_dir", str(folder))
     # Small programs too: a fit's solvers compile in well under the default one second.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)

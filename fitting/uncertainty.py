@@ -26,7 +26,7 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from fitting.parameters import Parameter
 
@@ -198,7 +198,9 @@ def information_criteria(sse: float, n_points: int, n_free: int) -> tuple[float,
 
 def t_quantile(dof: float) -> float:
     """Student-t 97.5 % quantile with `dof` degrees of freedom (NaN for ``dof <= 0``)."""
-    return float(stats.t.ppf(0.975, dof)) if dof > 0 else math.nan
+    # special.stdtrit is what scipy.stats.t.ppf evaluates; scipy.stats itself takes about
+    # a second to import.
+    return float(special.stdtrit(dof, 0.975)) if dof > 0 else math.nan
 
 
 #: Half-width in ln p beyond which a positive parameter's interval is reported as (0, inf):

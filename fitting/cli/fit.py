@@ -393,7 +393,10 @@ def run(args: argparse.Namespace) -> int:
     """
     try:
         from fitting.data import DataError, input_files
+        from fitting.solve import enable_compilation_cache
 
+        # First: the checks below evaluate the model, compiled programs worth keeping too.
+        enable_compilation_cache()
         try:
             files = input_files(args.inputs)
         except DataError as error:
