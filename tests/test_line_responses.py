@@ -135,6 +135,20 @@ def test_trace_response_equals_adaptive_convolution_with_the_interpolated_trace(
     np.testing.assert_allclose(on_samples.inlet, values, atol=1e-15)
 
 
+def test_trace_response_of_a_network_unit_equals_the_network_outlet_response():
+    # axialmix.network integrates the piecewise-linear inlet by an augmented matrix
+    # exponential, state by state: an independent route to the same outlet.
+    from axialmix.network import four_compartment
+    from axialmix.network import outlet_response as network_outlet_response
+
+    network = four_compartment(2.125, 2.125, 0.625, 1.0)
+    times = np.linspace(0.0, 12.0, 49)
+    values = np.cos(times) ** 2 + 0.5
+    line_route = outlet_response(Unit.network(network), Disturbance.trace(times, values), times)
+    np.testing.assert_allclose(line_route.outlet, network_outlet_response(network, times, values),
+                               atol=1e-12)
+
+
 def test_ramp_response_of_a_stirred_tank_has_its_closed_form():
     tau, magnitude, duration, start = 4.0, 0.3, 6.0, 2.0
     t = np.array([1.0, 3.0, 7.9, 8.0, 15.0])
