@@ -418,7 +418,7 @@ def test_closed_closed_curves_of_many_points_are_evaluated_in_blocks_with_the_sa
     # modes (reverse mode recomputes each block).
     from axialmix.analytic import _contour
 
-    t = jnp.linspace(0.0, 90.0, 2 * _contour.BLOCK + 123)  # two blocks and a padded third
+    t = jnp.linspace(0.0, 90.0, _contour.AT_ONCE + 123)  # blocks, the last one padded
 
     def blocked(p):
         return jnp.stack(_contour.closed_closed_curves(t / p[0], p[1]))
@@ -450,6 +450,6 @@ def test_closed_closed_gradient_memory_grows_only_with_the_results():
         compiled = jax.jit(loss).lower(jnp.array([20.0, 7.0])).compile()
         return compiled.memory_analysis().temp_size_in_bytes
 
-    small, large = 64 * 4096, 128 * 4096
+    small, large = 64 * 4096, 128 * 4096  # both above AT_ONCE
     per_point = (scratch(large) - scratch(small)) / (large - small)
     assert per_point < 100, f"{per_point:.0f} bytes of scratch memory per point"

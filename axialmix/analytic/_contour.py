@@ -34,6 +34,10 @@ DEFAULT_NODES = 32
 #: Points per block of a long evaluation (see :func:`closed_closed_curves`): about 50 MB of
 #: quadrature arrays per block.
 BLOCK = 4096
+#: Most points evaluated at once. Up to here a gradient keeps at most about 0.25 GB of
+#: quadrature arrays; beyond, blocks bound it, at the price of recomputing each block in the
+#: backward pass (a gradient costs about 1.5 times the CPU time).
+AT_ONCE = 16 * BLOCK
 # Below this exponent, exp(-Pe (1-theta)² / (4 theta)) and E, F underflow in double precision.
 _UNDERFLOW_EXPONENT = 1000.0
 
@@ -102,14 +106,14 @@ def closed_closed_curves(
     """Return the closed–closed E(theta) and F(theta) (dimensionless time), zero for theta <= 0.
 
     The quadrature holds about twenty ``(points, nodes + 1)`` complex arrays, which reverse-mode
-    differentiation keeps: 0.5 GB each for a million points. More than :data:`BLOCK` points
-    are therefore evaluated in blocks of that many (``lax.map``), each block rematerialised in
-    the backward pass (``jax.checkpoint``), so memory stays that of one block plus the
-    results, at any number of points, with the same values.
+    differentiation keeps: 0.5 GB each for a million points. More than :data:`AT_ONCE` points
+    are therefore evaluated in blocks of :data:`BLOCK` (``lax.map``), each block
+    rematerialised in the backward pass (``jax.checkpoint``), so memory stays that of one
+    block plus the results, at any number of points, with the same values.
     """
     theta, peclet = jnp.broadcast_arrays(jnp.asarray(theta, float), jnp.asarray(peclet, float))
     size = theta.size
-    if size <= BLOCK:
+    if size <= AT_ONCE:
         return _curves(theta, peclet, nodes)
     blocks = -(-size // BLOCK)
     padding = blocks * BLOCK - size
