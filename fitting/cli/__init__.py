@@ -58,6 +58,8 @@ class _InterruptGuard:
             "nothing written"
         self.exiting = threading.Lock()
         self.closed = False
+        #: The status of the finished sub-command, once there is one (see :meth:`finish`).
+        self.final: int | None = None
         self.read, self.write = os.pipe()
         os.set_blocking(self.write, False)
         self.previous = signal.signal(signal.SIGINT, self._handler)
@@ -82,12 +84,15 @@ class _InterruptGuard:
 
     def _exit(self) -> None:
         self.exiting.acquire()  # the first of handler and watcher exits; the other waits
-        with contextlib.suppress(OSError, ValueError):
-            print(self.message, file=sys.stderr, flush=True)
-        for stream in (sys.stdout, sys.stderr):
+        if self.final is None:
             with contextlib.suppress(OSError, ValueError):
-                stream.flush()
-        os._exit(_INTERRUPTED)
+                print(self.message, file=sys.stderr, flush=True)
+        _end_process(_INTERRUPTED if self.final is None else self.final)
+
+    def finish(self, status: int) -> None:
+        """The sub-command has finished with `status`: a Ctrl-C from now on (while the
+        process ends) ends it at once with that status, silently."""
+        self.final = status
 
     def close(self) -> None:
         """Restore the previous SIGINT handler and wakeup file; stop the watcher."""
@@ -98,6 +103,15 @@ class _InterruptGuard:
             os.write(self.write, b"\0")  # wakes the watcher, which then ends
         with contextlib.suppress(OSError):
             os.close(self.write)
+
+
+def _end_process(status: int) -> None:
+    """Flush standard output and error, then end the process with `status` at once
+    (``os._exit``: no interpreter teardown)."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+    os._exit(status)
 
 
 class _UsageError(Exception):
@@ -160,25 +174,42 @@ def main(argv: list[str] | None = None) -> int:
     Ctrl-C before a sub-command has taken charge of it (while its modules are imported, its
     options parsed or its input checked) prints one line and ends the process with status
     130 (see :class:`_InterruptGuard`).
+
+    Called as the program (without `argv`: the ``axialmix`` script), it ends the process
+    itself once the sub-command has finished, with ``os._exit`` after flushing the output:
+    a Ctrl-C during interpreter teardown would otherwise kill the process by the signal (or
+    meet compiled JAX work being torn down) although its results are complete.
     """
+    program = argv is None
     argv = sys.argv[1:] if argv is None else list(argv)
     command = _chosen(argv)
     in_main = threading.current_thread() is threading.main_thread()
     guard = _InterruptGuard(command) if in_main else None
+    status = 1  # axialmix._exits.FAILED: an exception (a bug) is on its way out
     try:
         parser = build_parser(command) if command is not None else _listing_parser()
         try:
             args = parser.parse_args(argv)
         except _UsageError:
-            return 2
-        return int(_command(args.command).run(args) or 0)
+            status = 2
+            return status
+        except SystemExit as done:  # --help
+            status = done.code if isinstance(done.code, int) else 0 if done.code is None else 1
+            raise
+        status = int(_command(args.command).run(args) or 0)
+        return status
     except KeyboardInterrupt:  # called from another thread: no handler of ours was installed
         print(f"axialmix{'' if command is None else ' ' + command}: interrupted",
               file=sys.stderr, flush=True)
-        return _INTERRUPTED
+        status = _INTERRUPTED
+        return status
     finally:
-        if guard is not None:
+        if guard is not None and program:
+            guard.finish(status)
+        elif guard is not None:
             guard.close()
+        if program and sys.exc_info()[0] is None:
+            _end_process(status)
 
 
 def _listing_parser() -> argparse.ArgumentParser:
