@@ -132,8 +132,6 @@ CASES = [
     ("--fix tau=nan", {"good.csv": GOOD}, ["{good.csv}", "--fix", "tau=nan"], "--fix tau"),
     ("--fix tau=-1", {"good.csv": GOOD}, ["{good.csv}", "--fix", "tau=-1"], "--fix tau"),
     ("--fix without a value", {"good.csv": GOOD}, ["{good.csv}", "--fix", "tau"], "--fix"),
-    ("--fix every parameter", {"good.csv": GOOD},
-     ["{good.csv}", "--fix", "tau=5", "--fix", "peclet=3"], "--fix"),
     ("--tie to an unknown parameter", {"good.csv": GOOD},
      ["{good.csv}", "--model", "four-compartment", "--tie", "k_r=k_q"], "'k_q'"),
     ("--loss xyz", {"good.csv": GOOD}, ["{good.csv}", "--loss", "xyz"], "--loss"),
