@@ -20,6 +20,13 @@ one release, mapped onto these by :func:`settings_from_keywords` with a Deprecat
   weights ``1 / max(|model|, floor)²`` until the fitted values stop changing (iteratively
   reweighted least squares); degrees of freedom then count floored points right
   (:func:`fitting.uncertainty.effective_degrees_of_freedom`).
+* Additive plus proportional errors (``errors="combined"``,
+  :class:`~fitting.losses.CombinedErrors`): after a first, unweighted fit, ``a`` and ``b``
+  of ``Var = a² + (b m)²`` are estimated from its residuals (pseudo-likelihood,
+  :func:`fitting.losses.estimate_combined_errors`), the curve is fitted again with weights
+  ``1 / (a² + (b m)²)``, and both steps repeat until the fitted values stop changing
+  (iterated weights). No floor: where the model is zero the
+  additive part sets the weight. Standard errors and intervals use these weights.
 * ``n_evaluations`` counts objective evaluations, each one value and gradient (one model
   evaluation plus its reverse pass), summed over all starts.
 """
@@ -37,7 +44,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from fitting.data import Curve, as_curve
-from fitting.losses import LOSSES
+from fitting.losses import (
+    ERROR_KINDS,
+    LOSSES,
+    CombinedErrors,
+    ErrorEstimate,
+    combined_weights,
+    estimate_combined_errors,
+    leverages,
+)
 from fitting.models import Model, get_model
 from fitting.parameters import Layout, Parameter, Parameters, clip_into_bounds, make_layout
 from fitting.result import FitResult, FitSettings, RelativeErrors
@@ -118,6 +133,28 @@ def settings_from_keywords(loss: str = "sse", optimiser: Optimiser | None = None
         relative_errors = None
     return FitSettings(loss=loss, optimiser=optimiser, multistart=multistart,
                        relative_errors=relative_errors)
+
+
+def with_error_model(settings: FitSettings,
+                     errors: str | RelativeErrors | CombinedErrors | None) -> FitSettings:
+    """`settings` with the error model `errors`: ``None`` keeps them as they are;
+    ``"absolute"``, ``"relative"`` or ``"combined"`` (or the settings of the last two)."""
+    if errors is None:
+        return settings
+    if isinstance(errors, str):
+        if errors not in ERROR_KINDS:
+            raise ValueError(f"errors must be one of {', '.join(ERROR_KINDS)}, got {errors!r}")
+        errors = {"absolute": None, "relative": RelativeErrors(),
+                  "combined": CombinedErrors()}[errors]
+    if errors is not None and not isinstance(errors, RelativeErrors | CombinedErrors):
+        raise ValueError(f"errors must be a name, RelativeErrors or CombinedErrors, got "
+                         f"{type(errors).__name__}")
+    if settings.relative_errors is not None and not isinstance(errors, RelativeErrors):
+        raise ValueError("give the error model once: errors or relative_errors")
+    return dataclasses.replace(
+        settings,
+        relative_errors=errors if isinstance(errors, RelativeErrors) else None,
+        combined_errors=errors if isinstance(errors, CombinedErrors) else None)
 
 
 def _fields(module) -> dict[str, Any]:
@@ -275,6 +312,7 @@ def fit(
     optimiser: Optimiser | None = None,
     multistart: MultiStart | None = None,
     relative_errors: RelativeErrors | bool | None = None,
+    errors: str | RelativeErrors | CombinedErrors | None = None,
     **legacy: Any,
 ) -> FitResult:
     """Fit a residence-time model to one curve by gradient descent; see the module docstring.
@@ -297,20 +335,26 @@ def fit(
     - `relative_errors`: :class:`~fitting.result.RelativeErrors` (or ``True``) to treat the
       data's errors as proportional to the curve (multiplicative noise): fit, then refit with
       weights ``1 / max(|model|, floor)²`` until consistent. Not combined with `weights`.
+    - `errors`: the error model by name: ``"absolute"`` (errors of one size; the default
+      when neither this nor `relative_errors` is given), ``"relative"`` (as
+      `relative_errors`) or ``"combined"`` (additive plus proportional, both estimated;
+      :class:`~fitting.losses.CombinedErrors`); or the settings of the last two. Not
+      combined with `weights`.
     - `legacy`: the keywords of earlier releases (``n_starts``, ``seed``, ``method``,
       ``max_steps``, ``tol``, ``ftol``, ``xtol``, ``warmup_steps``, ``learning_rate``);
       deprecated.
 
     **Returns:**
 
-    A :class:`~fitting.result.FitResult`.
+    A :class:`~fitting.result.FitResult`; its `error_model` holds the error sizes.
     """
     settings = settings_from_keywords(loss, optimiser, multistart, relative_errors, **legacy)
+    settings = with_error_model(settings, errors)
     return _fit_one(model, data, params, weights, settings)
 
 
 def _fit_one(model, data, params, weights, settings: FitSettings) -> FitResult:
-    if settings.relative_errors is not None:
+    if settings.relative_errors is not None or settings.combined_errors is not None:
         return _fit_batch(model, [data], params, None if weights is None else [weights],
                           settings)[0]
     curve = as_curve(data)
@@ -325,7 +369,15 @@ def _fit_one(model, data, params, weights, settings: FitSettings) -> FitResult:
         curve.value[None], prepared.weights[None],
     )
     out = {k: v[0] for k, v in out.items()}
-    return _result(prepared, prepared.layout, plan, out, wall_time, compile_time, settings)
+    result = _result(prepared, prepared.layout, plan, out, wall_time, compile_time, settings)
+    return _with_absolute_errors(result) if weights is None else result
+
+
+def _with_absolute_errors(result: FitResult) -> FitResult:
+    """An unweighted least-squares fit: errors of one size, estimated by ``s``."""
+    if result.loss_name != "sse":
+        return result
+    return dataclasses.replace(result, error_model=ErrorEstimate("absolute", result.sigma, 0.0))
 
 
 def fit_many(
@@ -338,6 +390,7 @@ def fit_many(
     optimiser: Optimiser | None = None,
     multistart: MultiStart | None = None,
     relative_errors: RelativeErrors | bool | None = None,
+    errors: str | RelativeErrors | CombinedErrors | None = None,
     **legacy: Any,
 ) -> list[FitResult]:
     """Fit one model to many curves in a single vmapped, jitted call.
@@ -348,8 +401,8 @@ def fit_many(
 
     **Arguments:**
 
-    - `model`, `loss`, `optimiser`, `multistart`, `relative_errors`, `legacy`: as in
-      :func:`fit` (curve i uses seed ``seed + i``); relative-error passes are one vmapped
+    - `model`, `loss`, `optimiser`, `multistart`, `relative_errors`, `errors`, `legacy`: as
+      in :func:`fit` (curve i uses seed ``seed + i``); relative-error passes are one vmapped
       call each.
     - `params`: as in :func:`fit`, for all curves, or a list with one setting per curve.
     - `curves`: :class:`~fitting.data.Curve` objects or ``(time, values)`` pairs.
@@ -361,10 +414,19 @@ def fit_many(
     share of the call.
     """
     settings = settings_from_keywords(loss, optimiser, multistart, relative_errors, **legacy)
+    settings = with_error_model(settings, errors)
     return _fit_batch(model, curves, params, weights, settings)
 
 
 def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[FitResult]:
+    if settings.combined_errors is not None:
+        if weights is not None:
+            raise ValueError("the combined error model sets the weights itself; pass "
+                             "weights=None")
+        curves = [as_curve(c) for c in curves]
+        plain = dataclasses.replace(settings, combined_errors=None)
+        first = _fit_batch(model, curves, params, None, plain)
+        return _refit_with_combined_errors(model, curves, first, settings)
     if settings.relative_errors is not None:
         if weights is not None:
             raise ValueError("relative_errors sets the weights itself; pass weights=None")
@@ -428,7 +490,7 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
         single["jacobian"] = single["jacobian"][:n]
         results.append(_result(p, layout, options, single, share,
                                compile_time / len(curves), settings))
-    return results
+    return results if weights is not None else [_with_absolute_errors(r) for r in results]
 
 
 def _without_idle_warmup(options: SolverPlan, prepared: Sequence[Prepared]) -> SolverPlan:
@@ -471,13 +533,69 @@ def _refit_with_relative_errors(model, curves: Sequence[Curve], first: Sequence[
         if change <= relative.change:
             break
     method = f"relative errors: reweighted by 1/model^2 until consistent ({passes} passes)"
-    return [
+    finished = [
         _with_effective_dof(dataclasses.replace(
             r, n_evaluations=int(e), wall_time=float(w), compile_time=float(c),
             method=f"{r.method}; {method}", n_starts=f.n_starts, init_params=f.init_params,
             settings=settings,
         ))
         for r, f, e, w, c in zip(results, first, evaluations, wall, compile_time, strict=True)
+    ]
+    return [dataclasses.replace(r, error_model=ErrorEstimate("relative", 0.0, r.sigma, passes))
+            for r in finished]
+
+
+def _combined_estimate(result: FitResult) -> tuple[float, float]:
+    """``(a, b)`` of the combined error model from a fit's residuals and leverages."""
+    used = result.weights > 0
+    leverage = leverages(result.jacobian[used], result.weights[used])
+    return estimate_combined_errors(result.residuals[used], result.predicted[used], leverage)
+
+
+def _refit_with_combined_errors(model, curves: Sequence[Curve], first: Sequence[FitResult],
+                                settings: FitSettings) -> list[FitResult]:
+    """Iterated weights for additive plus proportional errors: estimate ``(a, b)`` from the
+    last fit, refit with weights ``1 / (a² + (b m)²)`` from its model curve, until the fitted
+    values stop changing (the weights are then those of the fit's own curve and residuals)."""
+    combined = settings.combined_errors
+    results, passes = list(first), 1
+    evaluations = np.array([r.n_evaluations for r in first])
+    wall = np.array([r.wall_time for r in first])
+    compile_time = np.array([r.compile_time for r in first])
+    single = dataclasses.replace(
+        settings, combined_errors=None,
+        multistart=MultiStart(n_starts=1, seed=settings.multistart.seed,
+                              warmup_steps=settings.multistart.warmup_steps))
+    estimates = [_combined_estimate(r) for r in results]
+    used = list(estimates)
+    for _ in range(combined.max_passes - 1):
+        if all(a == 0.0 and b == 0.0 for a, b in estimates):
+            break  # an exact fit: no noise to weight by
+        starts = [r.restart_parameters() for r in results]
+        weights = []
+        for r, (a, b) in zip(results, estimates, strict=True):
+            w = combined_weights(r.predicted, a, b)
+            weights.append(w / w.max())  # only relative weights matter; keep them of order 1
+        new = _fit_batch(model, curves, starts, weights, single)
+        passes += 1
+        evaluations += [r.n_evaluations for r in new]
+        wall += [r.wall_time for r in new]
+        compile_time += [r.compile_time for r in new]
+        change = max(abs(b.values[n] / a.values[n] - 1) if a.values[n] else abs(b.values[n])
+                     for a, b in zip(results, new, strict=True) for n in a.free_names)
+        results, used = new, estimates
+        estimates = [_combined_estimate(r) for r in results]
+        if change <= combined.change:
+            break
+    method = (f"additive plus proportional errors: reweighted by 1/(a^2 + (b model)^2), a and "
+              f"b estimated from the residuals, until consistent ({passes} passes)")
+    return [
+        dataclasses.replace(
+            r, n_evaluations=int(e), wall_time=float(w), compile_time=float(c),
+            method=f"{r.method}; {method}", n_starts=f.n_starts, init_params=f.init_params,
+            settings=settings, error_model=ErrorEstimate("combined", a, b, passes))
+        for r, f, e, w, c, (a, b) in zip(results, first, evaluations, wall, compile_time, used,
+                                         strict=True)
     ]
 
 

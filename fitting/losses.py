@@ -9,16 +9,49 @@ zero weight drops a point (used to pad curves of different lengths to one array)
 * ``'mae'``: the source work's mean absolute error ``(1/n) Σ |r_i|`` (weighted:
   ``Σ w_i |r_i| / Σ w_i``), kept to compare with its grid search. It is not smooth at zero
   residuals, so gradient methods converge on it less cleanly than on ``'sse'``.
+
+Error models say how large a measurement's error is, and so which weights least squares needs:
+
+* absolute: errors of one size, ``Var(y_i) = a²`` (unweighted least squares);
+* relative: errors proportional to the curve, ``Var(y_i) = (b m_i)²`` (``m_i`` the model value);
+* combined (:class:`CombinedErrors`): both, ``Var(y_i) = a² + (b m_i)²``, as real detectors
+  have (an additive noise floor and a proportional part). Both ``a`` and ``b`` are estimated
+  from the data by iterated weights: after a fit, :func:`estimate_combined_errors` finds the
+  ``(a, b)`` that maximise the Gaussian pseudo-likelihood of the residuals (Carroll and
+  Ruppert 1988, *Transformation and Weighting in Regression*, ch. 3), each squared residual
+  divided by ``1 - h_i`` (its leverage) so that it is unbiased for its variance; the curve is
+  fitted again with weights ``1 / (a² + (b m_i)²)``, until the fitted values stop changing.
+  A point where the model is zero keeps the weight ``1/a²``: no floor is needed.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
+import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike
+from scipy import optimize
 
 import axialmix  # noqa: F401  (float64 before any JAX array is made)
 
-__all__ = ["LOSSES", "mean_absolute_error", "residuals", "sum_of_squares"]
+__all__ = [
+    "ERROR_KINDS",
+    "LOSSES",
+    "CombinedErrors",
+    "ErrorEstimate",
+    "combined_weights",
+    "estimate_combined_errors",
+    "leverages",
+    "mean_absolute_error",
+    "residuals",
+    "sum_of_squares",
+]
+
+#: The error models by name.
+ERROR_KINDS = ("absolute", "relative", "combined")
 
 
 def residuals(predicted: ArrayLike, observed: ArrayLike) -> Array:
@@ -81,3 +114,161 @@ def mean_absolute_error(
 
 #: The losses :func:`fitting.fit.fit` accepts, by name.
 LOSSES = {"sse": sum_of_squares, "mae": mean_absolute_error}
+
+
+# --- the combined error model ------------------------------------------------------------------
+
+
+class CombinedErrors(eqx.Module):
+    """Settings of fits with additive plus proportional errors, ``Var = a² + (b m)²``, immutable.
+
+    After a first (unweighted) fit, ``a`` and ``b`` are estimated from its residuals
+    (:func:`estimate_combined_errors`) and the curve is fitted again with weights
+    ``1 / (a² + (b m)²)`` from its own model curve ``m``, until the fitted values change by
+    less than `change` (iterated weights).
+
+    **Arguments:**
+
+    - `max_passes`: most fits in all (at least 2).
+    - `change`: relative change of every fitted value between passes below which the
+      weights count as consistent with the fit.
+    """
+
+    max_passes: int = eqx.field(default=20, static=True)
+    change: float = eqx.field(default=1e-8, static=True)
+
+    def __check_init__(self):
+        if not self.max_passes >= 2:
+            raise ValueError(f"max_passes must be at least 2, got {self.max_passes}")
+        if not self.change > 0:
+            raise ValueError(f"change must be positive, got {self.change}")
+
+
+@dataclass(frozen=True)
+class ErrorEstimate:
+    """The error model a fit used and its estimated sizes, in the data's unit.
+
+    - `kind`: ``"absolute"``, ``"relative"`` or ``"combined"``.
+    - `additive`: ``a``, the standard deviation of the additive part (data unit; 0 when the
+      model has none).
+    - `proportional`: ``b``, the standard deviation of the proportional part as a fraction
+      of the model value (0 when the model has none).
+    - `passes`: fits made (1 for absolute errors).
+    """
+
+    kind: str
+    additive: float
+    proportional: float
+    passes: int = 1
+
+    def standard_deviation(self, model_values: np.ndarray) -> np.ndarray:
+        """The measurement's standard deviation at model values ``m``: ``sqrt(a² + (b m)²)``."""
+        model_values = np.asarray(model_values, float)
+        return np.hypot(self.additive, self.proportional * model_values)
+
+    def to_dict(self) -> dict:
+        """A JSON-ready record."""
+
+        def finite(x):
+            return float(x) if math.isfinite(x) else None
+
+        return {"kind": self.kind, "additive_sd": finite(self.additive),
+                "proportional_sd": finite(self.proportional), "passes": int(self.passes)}
+
+    def describe(self, unit: str = "") -> str:
+        """The error model in words with its estimated sizes."""
+        unit = f" {unit}" if unit else ""
+        if self.kind == "absolute":
+            return f"absolute errors, standard deviation {self.additive:.3g}{unit}"
+        if self.kind == "relative":
+            return (f"relative errors, standard deviation {100 * self.proportional:.3g} % of "
+                    f"the model ({self.passes} fits)")
+        return (f"additive plus proportional errors, a = {self.additive:.3g}{unit} and "
+                f"b = {100 * self.proportional:.3g} % of the model, both estimated from the "
+                f"residuals ({self.passes} fits)")
+
+
+def leverages(jacobian: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Leverages ``h_i`` of a weighted least-squares fit: the diagonal of the hat matrix.
+
+    **Arguments:** `jacobian`: ``d y_model / d p``, shape ``(n, p)``; `weights`: ``w_i >= 0``.
+
+    **Returns:** ``h_i = w_i J_i (Jᵀ W J)⁺ J_iᵀ`` in [0, 1], shape ``(n,)`` (pseudo-inverse:
+    an undetermined direction adds nothing).
+    """
+    jacobian = np.asarray(jacobian, float)
+    root = np.sqrt(np.asarray(weights, float))[:, None] * jacobian
+    if root.size == 0:
+        return np.zeros(jacobian.shape[0])
+    basis, singular, _ = np.linalg.svd(root, full_matrices=False)
+    keep = singular > 1e-12 * max(float(singular.max(initial=0.0)), 1e-300)
+    return np.clip(np.sum(basis[:, keep] ** 2, axis=1), 0.0, 1.0)
+
+
+#: Largest share of the variance scale the proportional part may take in the search, so that
+#: ``a`` stays above zero by a margin that keeps every weight finite (``a/b`` above 1e-5 of
+#: the peak): a numerical bound, far below any detector's noise floor.
+_LARGEST_SHARE = 1.0 - 1e-10
+
+
+def estimate_combined_errors(residual: np.ndarray, model_values: np.ndarray,
+                             leverage: np.ndarray | None = None) -> tuple[float, float]:
+    """Estimate ``(a, b)`` of ``Var(y_i) = a² + (b m_i)²`` from a fit's residuals.
+
+    Writes the variance as ``s² ((1 - f) + f (m_i / m_max)²)`` with ``f`` in [0, 1] the
+    proportional share; for each ``f`` the scale ``s²`` has a closed form, and ``f`` maximises
+    the Gaussian pseudo-likelihood ``-Σ [ln v_i + r̃_i² / v_i] / 2`` with
+    ``r̃_i² = r_i² / (1 - h_i)`` (a coarse grid in ``logit f``, then Brent's method).
+
+    **Arguments:**
+
+    - `residual`: model minus data, shape ``(n,)`` (data unit).
+    - `model_values`: the fitted model curve at the same points.
+    - `leverage`: the fit's leverages ``h_i`` (default 0).
+
+    **Returns:** ``(a, b)``: the additive standard deviation (data unit) and the proportional
+    one (a fraction of the model value).
+    """
+    residual = np.asarray(residual, float)
+    model_values = np.asarray(model_values, float)
+    leverage = np.zeros_like(residual) if leverage is None else np.asarray(leverage, float)
+    scale = float(np.max(np.abs(model_values), initial=0.0))
+    squared = residual**2 / np.clip(1.0 - leverage, 1e-3, None)
+    if scale == 0.0 or not np.any(squared > 0):
+        return math.sqrt(float(np.mean(squared))), 0.0
+    relative = (model_values / scale) ** 2
+
+    def shape(share: float) -> np.ndarray:
+        return (1.0 - share) + share * relative
+
+    def negative_log_likelihood(logit: float) -> float:
+        share = _LARGEST_SHARE / (1.0 + math.exp(-logit))
+        g = shape(share)
+        return float(np.sum(np.log(g)) + squared.size * math.log(np.mean(squared / g)))
+
+    grid = np.linspace(-25.0, 25.0, 101)
+    values = [negative_log_likelihood(x) for x in grid]
+    best = int(np.argmin(values))
+    low, high = grid[max(best - 1, 0)], grid[min(best + 1, grid.size - 1)]
+    logit = grid[best]
+    if high > low:
+        found = optimize.minimize_scalar(negative_log_likelihood, bounds=(low, high),
+                                         method="bounded", options={"xatol": 1e-6})
+        if found.fun <= values[best]:
+            logit = float(found.x)
+    share = _LARGEST_SHARE / (1.0 + math.exp(-logit))
+    variance = float(np.mean(squared / shape(share)))
+    return math.sqrt(variance * (1.0 - share)), math.sqrt(variance * share) / scale
+
+
+def combined_weights(model_values: np.ndarray, additive: float,
+                     proportional: float) -> np.ndarray:
+    """Least-squares weights ``1 / (a² + (b m_i)²)`` of the combined error model.
+
+    **Arguments:** `model_values`: the model curve ``m_i``; `additive`: ``a`` (data unit);
+    `proportional`: ``b`` (fraction).
+
+    **Returns:** the weights (1/data unit²), shape of `model_values`.
+    """
+    variance = additive**2 + (proportional * np.asarray(model_values, float)) ** 2
+    return 1.0 / np.maximum(variance, np.finfo(float).tiny)

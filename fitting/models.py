@@ -26,8 +26,11 @@ rates equal, matched to the mean residence time.
 Model-specific facts are optional hooks of a :class:`Model`, so no other module needs to know
 a model by name: ``default_starts`` (how many starts a fit makes by default),
 ``equivalent_adm`` (the closed–closed ADM equivalent to fitted values, with units, computed
-by :mod:`axialmix`) and ``statements`` (facts about a fit in words, e.g. the
-four-compartment model's twin solutions).
+by :mod:`axialmix`), ``statements`` (facts about a fit in words, e.g. the
+four-compartment model's twin solutions), ``units`` and ``meanings`` (each parameter's unit
+and what it means, e.g. that the open–open ``tau`` is ``L/v``, not the mean residence time),
+and ``step_response`` and ``inlet_response`` (the model's exact outlet signal for a step and
+for a sampled inlet signal, used by the measurement model of :mod:`fitting.measurement`).
 """
 
 from __future__ import annotations
@@ -44,14 +47,26 @@ import jax.numpy as jnp
 import numpy as np
 
 from axialmix.adm import exit_age as _fv_exit_age
+from axialmix.adm import outlet_response as _fv_outlet_response
+from axialmix.adm import step_response as _fv_step_response
 from axialmix.analytic import (
     exit_age_closed,
     exit_age_open,
     exit_age_tanks,
+    mean_closed,
+    mean_open,
     peclet_from_moments,
+    step_response_closed,
+    step_response_open,
+    step_response_tanks,
 )
+from axialmix.analytic.inverse import transport_from_dimensionless
+from axialmix.line import Disturbance, Unit
+from axialmix.line import outlet_response as _unit_outlet_response
 from axialmix.network import (
+    FOUR_COMPARTMENT_CONNECTIONS,
     CompartmentNetwork,
+    cumulative_exit_age,
     four_compartment_exit_age,
     moment_matched_adm,
     residence_time_moments,
@@ -72,6 +87,7 @@ __all__ = [
     "get_model",
     "moment_estimates",
     "network_model",
+    "parameter_unit",
     "tanks",
 ]
 
@@ -82,6 +98,24 @@ ModelFunction = Callable[..., object]
 EquivalentADM = Callable[[Mapping[str, float], "float | None", str], dict[str, Any]]
 #: ``(values, settings) -> [sentence, ...]``: facts about a fit of this model in words.
 Statements = Callable[[Mapping[str, float], Mapping[str, Parameter]], list[str]]
+#: ``(t, params, inlet_times, inlet_values) -> outlet``: the outlet signal at times ``t`` for
+#: an inlet signal linear between its samples, zero before the first and after the last
+#: (JAX; ``t`` need not be sorted against the inlet samples).
+InletResponse = Callable[..., object]
+
+
+def parameter_unit(template: str, time_unit: str, value_unit: str | None = None) -> str:
+    """A parameter's unit from its template: ``{t}`` is the curve's time unit, ``{y}`` its
+    value unit (``"{t}"`` -> ``"min"``, ``"1/{t}"`` -> ``"1/min"``, ``"1"`` dimensionless,
+    ``"{y}*{t}"`` -> ``"g/L*min"``).
+
+    **Arguments:** `template`; `time_unit` (``"s"``, ``"min"``, ...); `value_unit` (the data
+    column's unit, or ``None`` when the file names none: then ``"signal"``, the unit of the
+    file's values).
+
+    **Returns:** the unit as text.
+    """
+    return template.replace("{t}", time_unit).replace("{y}", value_unit or "signal")
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,6 +137,11 @@ class Model:
       and, when it differs, the moment estimate.
     - `equivalent_adm`: optional hook, see :data:`EquivalentADM`.
     - `statements`: optional hook, see :data:`Statements`.
+    - `units`: each parameter's unit as a template for :func:`parameter_unit` (``"{t}"``,
+      ``"1/{t}"``, ``"1"``); a parameter without one has an unknown unit.
+    - `meanings`: what a parameter means, one sentence, by name (e.g. for ``tau``).
+    - `step_response`: optional ``F(t, params)``, the outlet for a unit step inlet at t = 0.
+    - `inlet_response`: optional hook, see :data:`InletResponse`.
     """
 
     name: str
@@ -114,6 +153,10 @@ class Model:
     default_starts: int | None = None
     equivalent_adm: EquivalentADM | None = field(default=None, repr=False)
     statements: Statements | None = field(default=None, repr=False)
+    units: Mapping[str, str] = field(default_factory=dict, repr=False)
+    meanings: Mapping[str, str] = field(default_factory=dict, repr=False)
+    step_response: ModelFunction | None = field(default=None, repr=False)
+    inlet_response: InletResponse | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         names = tuple(self.parameter_names)
@@ -152,6 +195,11 @@ class Model:
     def facts(self, values: Mapping[str, float], settings: Mapping[str, Parameter]) -> list[str]:
         """The model's :data:`Statements` about fitted `values` (empty without the hook)."""
         return [] if self.statements is None else list(self.statements(values, settings))
+
+    def unit(self, name: str, time_unit: str, value_unit: str | None = None) -> str:
+        """The unit of parameter `name` for a curve in `time_unit` (``""`` when unknown)."""
+        template = self.units.get(name)
+        return "" if template is None else parameter_unit(template, time_unit, value_unit)
 
 
 def _as_parameter(value: Parameter | float, name: str) -> Parameter:
@@ -207,18 +255,32 @@ def _finite(value: float | None) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
 
+def _adm_transport(values: Mapping[str, float], length: float | None, time_unit: str,
+                   mean: Callable) -> dict[str, Any]:
+    """tau, Pe, the mean residence time and, with a length, ``v`` and ``D_z`` in SI of an ADM
+    fit (:func:`axialmix.analytic.inverse.transport_from_dimensionless`, tau in seconds)."""
+    tau, peclet = float(values["tau"]), float(values["peclet"])
+    velocity = dispersion = mean_time = None
+    if tau > 0 and peclet > 0:
+        mean_time = float(mean(tau, peclet))
+        if length is not None:
+            velocity, dispersion = (float(x) for x in transport_from_dimensionless(
+                tau * seconds_per(time_unit), peclet, length))
+    return {f"tau_{time_unit}": _finite(tau), "peclet": _finite(peclet),
+            f"mean_residence_time_{time_unit}": _finite(mean_time), "length_m": length,
+            "velocity_m_per_s": _finite(velocity), "dispersion_m2_per_s": _finite(dispersion)}
+
+
 def _closed_adm_transport(values: Mapping[str, float], length: float | None,
                           time_unit: str) -> dict[str, Any]:
-    """Velocity and dispersion of a closed–closed ADM fit: ``v = L / tau``,
-    ``D_z = L² / (tau Pe)``, tau converted to seconds (MODELS.md section 2)."""
-    tau, peclet = float(values["tau"]), float(values["peclet"])
-    tau_s = tau * seconds_per(time_unit)
-    velocity = dispersion = None
-    if length is not None:
-        velocity = length / tau_s if tau_s > 0 else math.nan
-        dispersion = length**2 / (tau_s * peclet) if tau_s > 0 and peclet > 0 else math.nan
-    return {f"tau_{time_unit}": _finite(tau), "peclet": _finite(peclet), "length_m": length,
-            "velocity_m_per_s": _finite(velocity), "dispersion_m2_per_s": _finite(dispersion)}
+    """The closed–closed ADM's tau (= L/v = the mean), Pe, v and D_z (MODELS.md section 2)."""
+    return _adm_transport(values, length, time_unit, mean_closed)
+
+
+def _open_adm_transport(values: Mapping[str, float], length: float | None,
+                        time_unit: str) -> dict[str, Any]:
+    """The open–open ADM's tau = L/v, its mean residence time (1 + 2/Pe) tau, Pe, v, D_z."""
+    return _adm_transport(values, length, time_unit, mean_open)
 
 
 def _adm_closed_function(t, p):
@@ -237,6 +299,94 @@ def _tanks_function(t, p):
     return exit_age_tanks(t, p["tau"], p["n_tanks"])
 
 
+def _adm_closed_step(t, p):
+    return step_response_closed(t, p["tau"], p["peclet"])
+
+
+def _adm_closed_fv_step(t, p):
+    return _fv_step_response(t, p["tau"], p["peclet"])
+
+
+def _adm_open_step(t, p):
+    return step_response_open(t, p["tau"], p["peclet"])
+
+
+def _tanks_step(t, p):
+    return step_response_tanks(t, p["tau"], p["n_tanks"])
+
+
+#: Gauss–Legendre nodes per inlet interval of :func:`_quadrature_inlet_response`.
+INLET_NODES = 16
+_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(INLET_NODES)
+
+
+def _quadrature_inlet_response(exit_age: ModelFunction) -> InletResponse:
+    """The response to a piecewise-linear inlet, ``∫ u(s) E(t - s) ds``, of a model whose exact
+    E is smooth: on each inlet interval, cut at ``t`` (E is zero at negative ages), the linear
+    signal times the exact E is integrated by 16-point Gauss–Legendre quadrature.
+
+    Measured against the exact transfer-function inversion
+    (:func:`axialmix.analytic.responses.inlet_response`) for the closed–closed and open–open
+    ADM at Pe 0.5 to 5000 with 4 to 13 inlet samples over 0.3 tau: at most 4e-10 of the
+    peak (Pe 0.5 with 4 samples, where E rises steeply from t = 0), 1e-12 typically. That
+    inversion is exact too but takes minutes to compile inside a fit's solver; this costs
+    ``16 × intervals`` evaluations of E per output time and compiles like E itself.
+    """
+
+    @jax.jit
+    def response(t, p, inlet_times, inlet_values):
+        t = jnp.asarray(t, float)
+        start, end = inlet_times[:-1], inlet_times[1:]
+        top = jnp.clip(t[..., None], start, end)
+        width = top - start
+        nodes = start[:, None] + width[..., None] * ((1.0 + _NODES) / 2.0)
+        slopes = jnp.diff(inlet_values) / jnp.diff(inlet_times)
+        signal = inlet_values[:-1, None] + slopes[:, None] * (nodes - start[:, None])
+        ages = t[..., None, None] - nodes
+        density = exit_age(ages.reshape(-1), p).reshape(ages.shape)
+        return jnp.sum(density * signal * _WEIGHTS * (width[..., None] / 2.0), axis=(-2, -1))
+
+    return response
+
+
+def _tanks_inlet_response(t, p, inlet_times, inlet_values):
+    # Tanks in series have exact closed-form step and ramp responses (axialmix.line); E of
+    # fewer than one tank is singular at t = 0, where quadrature would fail.
+    signal = (Disturbance.trace(inlet_times, inlet_values)
+              + Disturbance.step(-inlet_values[-1], inlet_times[-1]))
+    unit = Unit.tanks(p["tau"], p["n_tanks"])
+    return _unit_outlet_response(unit, signal, jnp.atleast_1d(t)).outlet.reshape(jnp.shape(t))
+
+
+def _adm_closed_fv_inlet(t, p, inlet_times, inlet_values):
+    # The solver holds the inlet at its last sample; a step of minus that value at the last
+    # sample time ends it there (both curves from the same solver).
+    held = _fv_outlet_response(t, p["tau"], p["peclet"], inlet_times, inlet_values)
+    return held - inlet_values[-1] * _fv_step_response(t - inlet_times[-1], p["tau"],
+                                                       p["peclet"])
+
+
+def _network_inlet_response(unit_of: Callable) -> InletResponse:
+    """The exact response of a continuous network to a piecewise-linear inlet, through
+    :func:`axialmix.line.outlet_response` (exact step and ramp responses, matrix exponentials)."""
+
+    def response(t, p, inlet_times, inlet_values):
+        signal = (Disturbance.trace(inlet_times, inlet_values)
+                  + Disturbance.step(-inlet_values[-1], inlet_times[-1]))
+        return _unit_outlet_response(unit_of(p), signal, jnp.atleast_1d(t)).outlet.reshape(
+            jnp.shape(t))
+
+    return response
+
+
+#: Units of the ADM parameters ({t}: the curve's time unit).
+_ADM_UNITS = {"tau": "{t}", "peclet": "1"}
+_CLOSED_TAU = ("tau = L/v, the space time; for the closed-closed model it equals the mean "
+               "residence time")
+_OPEN_TAU = ("tau = L/v, the space time; for the open-open model it is not the mean residence "
+             "time, which is (1 + 2/Pe) tau")
+
+
 def _adm_defaults() -> dict[str, Parameter]:
     return {"tau": Parameter(1.0, min=0.0), "peclet": Parameter(10.0, min=0.0)}
 
@@ -249,6 +399,10 @@ adm_closed = Model(
     initial_guess=_adm_guess,
     description="axial dispersion model, closed-closed (Danckwerts), exact",
     equivalent_adm=_closed_adm_transport,
+    units=_ADM_UNITS,
+    meanings={"tau": _CLOSED_TAU},
+    step_response=_adm_closed_step,
+    inlet_response=_quadrature_inlet_response(_adm_closed_function),
 )
 
 adm_closed_fv = Model(
@@ -259,6 +413,10 @@ adm_closed_fv = Model(
     initial_guess=_adm_guess,
     description="axial dispersion model, closed-closed (Danckwerts), finite volumes",
     equivalent_adm=_closed_adm_transport,
+    units=_ADM_UNITS,
+    meanings={"tau": _CLOSED_TAU},
+    step_response=_adm_closed_fv_step,
+    inlet_response=_adm_closed_fv_inlet,
 )
 
 adm_open = Model(
@@ -268,6 +426,11 @@ adm_open = Model(
     defaults=_adm_defaults(),
     initial_guess=_adm_guess,
     description="axial dispersion model, open-open, exact",
+    equivalent_adm=_open_adm_transport,
+    units=_ADM_UNITS,
+    meanings={"tau": _OPEN_TAU},
+    step_response=_adm_open_step,
+    inlet_response=_quadrature_inlet_response(_adm_open_function),
 )
 
 tanks = Model(
@@ -277,6 +440,10 @@ tanks = Model(
     defaults={"tau": Parameter(1.0, min=0.0), "n_tanks": Parameter(5.0, min=0.0)},
     initial_guess=_tanks_guess,
     description="tanks in series (gamma distribution, continuous number of tanks)",
+    units={"tau": "{t}", "n_tanks": "1"},
+    meanings={"tau": "tau is the mean residence time of the whole chain of tanks"},
+    step_response=_tanks_step,
+    inlet_response=_tanks_inlet_response,
 )
 
 
@@ -304,6 +471,25 @@ def _four_compartment_guess(curve: Curve) -> dict[str, float]:
 
 def _four_compartment_function(t, p):
     return four_compartment_exit_age(t, p["k_f"], p["k_r"], p["k_s"], p["k_out"])
+
+
+def _four_compartment_rates(p):
+    """The 2 × 2 network and the rates of `p` as arrays in its connection order (the order of
+    :data:`axialmix.network.FOUR_COMPARTMENT_CONNECTIONS`, which the network preset keeps)."""
+    network = _four_compartment_network(1.0, 1.0, 1.0, 1.0)
+    rates = jnp.stack([jnp.asarray(p[rate], float)
+                       for _, _, rate in FOUR_COMPARTMENT_CONNECTIONS])
+    return network, rates, jnp.stack([jnp.asarray(p["k_out"], float)])
+
+
+def _four_compartment_step(t, p):
+    network, rates, outflow = _four_compartment_rates(p)
+    return cumulative_exit_age(network, t, rates, outflow)
+
+
+def _four_compartment_unit(p):
+    network, rates, outflow = _four_compartment_rates(p)
+    return Unit.network(network, rates, outflow)
 
 
 def _four_compartment_equivalent(values: Mapping[str, float], length: float | None,
@@ -353,6 +539,9 @@ four_compartment = Model(
     default_starts=NETWORK_STARTS,
     equivalent_adm=_four_compartment_equivalent,
     statements=_mirror_statements,
+    units=dict.fromkeys(FOUR_COMPARTMENT_NAMES, "1/{t}"),
+    step_response=_four_compartment_step,
+    inlet_response=_network_inlet_response(_four_compartment_unit),
 )
 
 
@@ -442,6 +631,14 @@ def network_model(
         rates, outflow = rates_of(p)
         return _network_exit_age(network, t, rates, outflow)
 
+    def step(t, p):
+        rates, outflow = rates_of(p)
+        return cumulative_exit_age(network, t, rates, outflow)
+
+    def unit_of(p):
+        rates, outflow = rates_of(p)
+        return Unit.network(network, rates, outflow)
+
     def equivalent(values, length, time_unit):
         rates, outflow = rates_of({n: float(values[n]) for n in names}, np)
         return moment_matched_adm(network, length, time_unit=time_unit, rates=rates,
@@ -455,6 +652,9 @@ def network_model(
         description=f"compartment network from {Path(network_file).name}",
         default_starts=NETWORK_STARTS,
         equivalent_adm=equivalent,
+        units=dict.fromkeys(names, "1/{t}" if not network.is_discrete else "1"),
+        step_response=None if network.is_discrete else step,
+        inlet_response=None if network.is_discrete else _network_inlet_response(unit_of),
     )
 
 

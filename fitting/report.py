@@ -7,8 +7,13 @@ parameters the curve determines, the equivalent axial dispersion of a compartmen
 and a two-panel PNG (data and fitted curve; residuals). Files are written by
 :mod:`axialmix._files` (a temporary file moved into place), so an interrupted run never
 leaves a half-written file. Nothing here computes physics: the equivalent ADM comes from the
-model's hook (:meth:`fitting.result.FitResult.equivalent_adm`), Pe from moments from
-:mod:`axialmix.analytic`.
+model's hook (:meth:`fitting.result.FitResult.equivalent_adm`), its uncertainty from
+:func:`fitting.physical.physical_quantities`, Pe from moments from :mod:`axialmix.analytic`.
+
+Every number carries its unit: parameters in tables as ``tau (min)``, in JSON with a
+``unit`` field; physical quantities with the unit in their key (``dispersion_m2_per_s``,
+``mean_residence_time_min``). With the measurement model (:mod:`fitting.measurement`) the
+plot shows the data as ``(c - b) / A``, i.e. E normalised by the fitted amplitude.
 """
 
 from __future__ import annotations
@@ -26,7 +31,9 @@ from axialmix._files import write_atomic, write_csv, write_json
 from axialmix.analytic import peclet_from_variance_ratio as _peclet_from_variance_ratio
 from fitting.diagnostics import ModelComparison, identifiability
 from fitting.gridsearch import GridResult
+from fitting.measurement import MeasuredModel, observed_response
 from fitting.models import get_model
+from fitting.physical import physical_quantities
 from fitting.result import FitResult
 
 __all__ = [
@@ -239,19 +246,48 @@ def _verdict(record: Mapping[str, Any] | None) -> str:
 
 
 
-def fit_table(result: FitResult, grid: GridResult | None = None) -> str:
+def _labelled(name: str, unit: str) -> str:
+    """``"tau (min)"``; a dimensionless or unknown unit is left out."""
+    return name if unit in ("", "1") else f"{name} ({unit})"
+
+
+def parameter_units(result: FitResult) -> dict[str, str]:
+    """The unit of each parameter of a fit, from its model (``""`` where unknown)."""
+    value_unit = result.curve.value_unit
+    if result.curve.normalised:
+        value_unit = f"1/{result.time_unit}"
+    return {name: result.model.unit(name, result.time_unit, value_unit)
+            for name in result.values}
+
+
+def _derived(result: FitResult, length_m: float | None) -> dict[str, Any]:
+    """The physical quantities that are not parameters themselves (v, D_z, mean time, ...)."""
+    quantities = physical_quantities(result, length_m)
+    own = {"peclet", f"tau_{result.time_unit}"} if "tau" in result.values else set()
+    tau = result.values.get("tau")
+    return {key: q for key, q in quantities.items()
+            if key not in own and q.value is not None
+            and not (key.startswith("mean_residence_time") and q.value == tau)}
+
+
+def fit_table(result: FitResult, grid: GridResult | None = None,
+              length_m: float | None = None) -> str:
     """The parameter table of one fit, with the grid search beside it when given.
 
     **Arguments:**
 
     - `result`: the gradient fit.
     - `grid`: the grid search on the same curve and loss, or ``None``.
+    - `length_m`: blender length ``L`` (m): physical quantities (``v``, ``D_z``) are added
+      with their standard errors and 95 % intervals (delta method).
 
-    **Returns:** the table text (parameters, then loss, evaluations and time).
+    **Returns:** the table text (parameters with units, physical quantities, then the error
+    model, loss, evaluations and time).
     """
     header = ["parameter", "value", "std. error", "95 % interval"]
     if grid is not None:
         header.append("grid search")
+    units = parameter_units(result)
     rows = []
     for name, value in result.values.items():
         setting = result.init_params[name]
@@ -263,10 +299,20 @@ def fit_table(result: FitResult, grid: GridResult | None = None) -> str:
         else:
             kind = (f"[{_number(interval[0])}, {_number(interval[1])}]"
                     if interval is not None else "-")
-        row = [name, _number(value, 6), _number(result.stderr.get(name), 3), kind]
+        row = [_labelled(name, units[name]), _number(value, 6),
+               _number(result.stderr.get(name), 3), kind]
         if grid is not None:
             row.append(_number(grid.values.get(name), 6))
         rows.append(row)
+    for quantity in _derived(result, length_m).values():
+        interval = quantity.ci95
+        rows.append([_labelled(quantity.label, quantity.unit), _number(quantity.value, 6),
+                     _number(quantity.stderr, 3),
+                     f"[{_number(interval[0])}, {_number(interval[1])}]" if interval else "-"]
+                    + ([""] if grid is not None else []))
+    if result.error_model is not None:
+        rows.append(["errors", result.error_model.kind, "", ""]
+                    + ([""] if grid is not None else []))
     rows.append(["loss (" + result.loss_name + ")", _number(result.loss, 5), "", ""]
                 + ([_number(grid.loss, 5)] if grid is not None else []))
     rows.append(["evaluations", f"{result.n_evaluations:,}", "", ""]
@@ -278,8 +324,9 @@ def fit_table(result: FitResult, grid: GridResult | None = None) -> str:
                    else []))
     rows.append(["lack of fit", _verdict(result.lack_of_fit.to_dict()), "", ""]
                 + ([""] if grid is not None else []))
+    signal = result.curve.value_unit or ("E" if result.curve.normalised else "")
     title = (f"{result.name or 'curve'}: model {result.model.name}, {result.n_points} points, "
-             f"times in {result.time_unit}")
+             f"times in {result.time_unit}" + (f", signal in {signal}" if signal else ""))
     return title + "\n" + text_table(header, rows)
 
 
@@ -300,15 +347,21 @@ def fit_record(
       only ``tau`` and ``Pe`` are given (there is no default length).
 
     **Returns:** a JSON-ready dict with ``model``, ``data``, ``source``, ``parameters``
-    (``{name: {value, stderr, ci95, vary, expr}}``), ``loss``, ``loss_name``, ``converged``,
+    (``{name: {value, stderr, ci95, vary, expr, unit}}``), ``meanings`` (what a parameter
+    means, e.g. the open–open tau), ``loss``, ``loss_name``, ``converged``,
     ``message``, ``n_evaluations``, ``wall_time``, ``correlation``, ``aic``, ``bic``,
-    ``time_unit``, ``identifiability`` (sentences), ``lack_of_fit``
+    ``time_unit``, ``value_unit``, ``error_model`` (kind and estimated sizes),
+    ``identifiability`` (sentences), ``lack_of_fit``
     (:meth:`fitting.residuals.LackOfFit.to_dict`), ``equivalent_adm`` (models with that hook;
-    units in its keys) and ``grid_search`` when one was run.
+    units in its keys), ``physical`` (the same quantities with ``value``, ``stderr``,
+    ``ci95`` and ``unit``: delta method), ``measurement`` (the inlet signal, for a measured
+    model) and ``grid_search`` when one was run.
     """
     base = result.to_dict()
+    units = parameter_units(result)
     parameters = {
-        name: {key: entry[key] for key in ("value", "stderr", "ci95", "vary", "expr")}
+        name: {**{key: entry[key] for key in ("value", "stderr", "ci95", "vary", "expr")},
+               "unit": units[name]}
         for name, entry in base["parameters"].items()
     }
     record: dict[str, Any] = {
@@ -331,10 +384,18 @@ def fit_record(
         "correlation": base["correlation"],
         "identifiability": identifiability_statements(result),
         "lack_of_fit": result.lack_of_fit.to_dict(),
+        "value_unit": result.curve.value_unit,
+        "meanings": dict(result.model.meanings),
+        "error_model": base.get("error_model"),
     }
+    if isinstance(result.model, MeasuredModel):
+        record["measurement"] = {"inlet": result.model.inlet.kind,
+                                 "inlet_description": result.model.inlet.describe()}
     equivalent = result.equivalent_adm(length_m)
     if equivalent is not None:
         record["equivalent_adm"] = equivalent
+        record["physical"] = {key: quantity.to_dict() for key, quantity in
+                              physical_quantities(result, length_m).items()}
     if grid is not None:
         record["grid_search"] = grid.to_dict()
     return record
@@ -354,6 +415,9 @@ def summary_rows(records: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[
     header = ["data"]
     for name in names:
         header += [name, f"{name}_stderr"]
+    physical = _physical_keys(records)
+    for key in physical:
+        header += [key, f"{key}_stderr"]
     header += ["loss", "n_evaluations", "wall_time_s", "converged", "systematic_misfit"]
     with_grid = any("grid_search" in r for r in records)
     if with_grid:
@@ -363,6 +427,9 @@ def summary_rows(records: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[
         row: list[Any] = [record["data"]]
         for name in names:
             entry = record["parameters"].get(name, {})
+            row += [entry.get("value"), entry.get("stderr")]
+        for key in physical:
+            entry = (record.get("physical") or {}).get(key, {})
             row += [entry.get("value"), entry.get("stderr")]
         verdict = record.get("lack_of_fit") or {}
         row += [record["loss"], record["n_evaluations"], round(record["wall_time"], 4),
@@ -374,11 +441,28 @@ def summary_rows(records: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[
     return header, rows
 
 
+def _physical_keys(records: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The physical quantities of the records that are not parameters of theirs, in order."""
+    keys: list[str] = []
+    for record in records:
+        own = set(record["parameters"])
+        for key in record.get("physical") or {}:
+            stem = key.rsplit("_", 1)[0] if key.startswith("tau_") else key
+            if key not in keys and stem not in own and key not in own:
+                keys.append(key)
+    return keys
+
+
 def summary_table(records: Sequence[Mapping[str, Any]]) -> str:
-    """The readable summary table of several fits (value ± standard error per parameter)."""
+    """The readable summary table of several fits (value ± standard error per parameter, and
+    per physical quantity: a network's equivalent tau, Pe and D_z, an ADM's v and D_z)."""
     names = list(records[0]["parameters"]) if records else []
+    physical = _physical_keys(records)
     with_grid = any("grid_search" in r for r in records)
-    header = ["data", *names, "loss", "evaluations", "time (s)", "converged", "lack of fit"]
+    units = records[0]["parameters"] if records else {}
+    labels = [_labelled(name, units[name].get("unit", "")) for name in names]
+    header = ["data", *labels, *physical, "loss", "evaluations", "time (s)", "converged",
+              "lack of fit"]
     if with_grid:
         header += ["grid loss", "grid evaluations"]
     rows = []
@@ -390,6 +474,11 @@ def summary_table(records: Sequence[Mapping[str, Any]]) -> str:
             row.append(_number(entry["value"], 4)
                        + ("" if error is None or not entry.get("vary", True) and
                           entry.get("expr") is None else f" +/- {error:.2g}"))
+        for key in physical:
+            entry = (record.get("physical") or {}).get(key, {})
+            error = _finite(entry.get("stderr"))
+            row.append(_number(entry.get("value"), 4)
+                       + ("" if error is None else f" +/- {error:.2g}"))
         row += [_number(record["loss"], 4), f"{record['n_evaluations']:,}",
                 f"{record['wall_time']:.3f}", "yes" if record["converged"] else "no",
                 _verdict(record.get("lack_of_fit"))]
@@ -511,10 +600,20 @@ def render_fit_png(result: FitResult, grid: GridResult | None = None) -> bytes:
 
     every, note = _drawn(len(result.time))
     time = np.asarray(result.time)[every]
-    observed = _plottable(np.asarray(result.observed)[every])
+    # With the measurement model the data are shown as (c - b) / A: E normalised by the
+    # fitted amplitude (F for a step inlet, E * u for a measured one).
+    shown, label = observed_response(result.model, result.values, result.curve)
+    observed = _plottable(shown[every])
     fine = np.linspace(0.0, float(np.asarray(result.time)[-1]) * 1.05, 400)[1:]
     model = result.model
-    curve = _plottable(model(fine, {n: result.values[n] for n in model.parameter_names}))
+
+    def normalised(values):
+        curve = np.asarray(model(fine, {n: values[n] for n in model.parameter_names}), float)
+        if isinstance(model, MeasuredModel):
+            curve = (curve - float(values["baseline"])) / float(values["amplitude"])
+        return _plottable(curve)
+
+    curve = normalised(result.values)
     figure = Figure(figsize=(7, 6), layout="constrained")
     top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[3, 1.3])
     top.plot(time, observed, "o", color="black", label=f"data{note}",
@@ -522,18 +621,27 @@ def render_fit_png(result: FitResult, grid: GridResult | None = None) -> bytes:
     top.plot(fine, curve, "-", color="tab:blue",
              label=f"fit ({model.name}, {result.loss_name} = {result.loss:.3g})")
     if grid is not None:
-        grid_curve = _plottable(model(fine, {n: grid.values[n] for n in model.parameter_names}))
+        grid_curve = normalised(grid.values)
         top.plot(fine, grid_curve, "--", color="tab:orange",
                  label=f"grid search ({grid.loss_name} = {grid.loss:.3g})")
     unit = result.time_unit
-    top.set_ylabel(f"E(t) (1/{unit})")
+    if label in ("E", "E * u"):
+        top.set_ylabel(f"{label} (1/{unit})" + (" = (c - b) / A" if label != "E" or
+                                                 isinstance(model, MeasuredModel) else ""))
+    elif label == "F":
+        top.set_ylabel("F = (c - b) / A")
+    else:
+        top.set_ylabel(f"signal ({result.curve.value_unit})" if result.curve.value_unit
+                       else "signal")
     top.set_title(f"{result.name or 'curve'}: model {model.name}", fontsize=10)
     top.legend(fontsize=8)
     residual = _plottable(np.asarray(result.predicted)[every] - np.asarray(result.observed)[every])
     bottom.axhline(0.0, color="grey", linewidth=0.8)
     bottom.plot(time, residual, "o-", color="tab:blue", markersize=4 if not note else 1.5,
                 linewidth=1.0 if not note else 0.5)
-    bottom.set_ylabel("residual\n(model - data)" + ("\n(points drawn as above)" if note else ""))
+    signal_unit = f" ({result.curve.value_unit})" if result.curve.value_unit else ""
+    bottom.set_ylabel(f"residual{signal_unit}\n(model - data)"
+                      + ("\n(points drawn as above)" if note else ""))
     bottom.set_xlabel(f"time ({unit})")
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=100)

@@ -19,6 +19,7 @@ import equinox as eqx
 import numpy as np
 
 from fitting.data import Curve
+from fitting.losses import CombinedErrors, ErrorEstimate
 from fitting.models import Model
 from fitting.parameters import Parameters
 from fitting.residuals import LackOfFit, lack_of_fit_test
@@ -67,16 +68,21 @@ class FitSettings(eqx.Module):
     - `optimiser`: :class:`~fitting.solve.Optimiser`.
     - `multistart`: :class:`~fitting.solve.MultiStart`.
     - `relative_errors`: :class:`RelativeErrors`, or ``None`` for errors of equal size.
+    - `combined_errors`: :class:`~fitting.losses.CombinedErrors` for additive plus
+      proportional errors, both estimated, or ``None``.
     """
 
     loss: str = eqx.field(default="sse", static=True)
     optimiser: Optimiser = Optimiser()
     multistart: MultiStart = MultiStart()
     relative_errors: RelativeErrors | None = None
+    combined_errors: CombinedErrors | None = None
 
     def __check_init__(self):
         if self.loss not in ("sse", "mae"):
             raise ValueError(f"loss must be one of ['mae', 'sse'], got {self.loss!r}")
+        if self.relative_errors is not None and self.combined_errors is not None:
+            raise ValueError("choose one error model: relative_errors or combined_errors")
 
 
 @dataclass(frozen=True)
@@ -129,6 +135,8 @@ class FitResult:
       `predicted`, `residuals` (model - data), `jacobian` (d predicted / d free), all
       read-only arrays.
     - `settings`: the :class:`FitSettings` the fit ran with.
+    - `error_model`: the :class:`~fitting.losses.ErrorEstimate` behind the weights (kind and
+      estimated sizes), or ``None`` for weights given by the caller.
     - `lack_of_fit`: the :class:`~fitting.residuals.LackOfFit` verdict on the residuals
       (computed on first use).
     """
@@ -169,6 +177,7 @@ class FitResult:
     jacobian: np.ndarray = field(repr=False)
     compile_time: float = 0.0
     settings: FitSettings | None = field(default=None, repr=False)
+    error_model: ErrorEstimate | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         for name in ("weights", "predicted", "residuals", "jacobian", "start_losses",
@@ -365,6 +374,7 @@ class FitResult:
             "wall_time": self.wall_time,
             "compile_time": self.compile_time,
             "lack_of_fit": self.lack_of_fit.to_dict(),
+            "error_model": None if self.error_model is None else self.error_model.to_dict(),
         }
 
     def restart_parameters(self) -> Parameters:

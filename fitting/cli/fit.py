@@ -2,8 +2,10 @@
 
     axialmix fit FILE_OR_FOLDER... --model adm|adm-fv|adm-open|tanks|four-compartment|NET.json
                  (a network file may be .toml; several models, comma-separated, to compare)
-                 [--fix NAME=VALUE] [--tie NAME=OTHER] [--loss sse|mae] [--grid] [--starts N]
-                 [--errors absolute|relative] [--length METRES] --out DIR
+                 [--fix NAME=VALUE] [--tie NAME=OTHER] [--free dead_time,baseline]
+                 [--inlet pulse|step|FILE] [--loss sse|mae] [--grid] [--starts N]
+                 [--errors absolute|relative|combined] [--length METRES]
+                 [--decimal auto|.|,] [--time-column C] [--value-column C] --out DIR
 
 Every input is read and validated, and every option checked, before anything is written:
 bad input prints one line ``axialmix fit: error: <file>:<row>: <problem>`` to stderr and
@@ -25,12 +27,32 @@ worker finish the file it may be writing, writes the summary of the curves alrea
 removes the lock and ends the process with status 130 via ``os._exit`` — compiled JAX work
 still running is abandoned rather than waited for (its teardown could crash the process).
 
-With ``--errors relative`` the measurement errors are taken as proportional to the curve
-(multiplicative noise, the usual case for concentration measurements): each curve is fitted,
-then refitted weighted by ``1 / model²`` until the weights are those of its own curve
-(``1 / |model|`` for the mean absolute error), see :func:`fitting.fit.fit`. Unweighted
-least squares treats the peak, the noisiest part, as precise as the tail, and its intervals
-are then too narrow.
+Each curve is fitted as measured, in the file's own units: the model is wrapped in the
+measurement model ``c(t) = A (E * u)(t - t_d) + b`` (:mod:`fitting.measurement`). The amplitude
+A is always fitted, so the data are never divided by their own area; the dead time t_d and
+the baseline b are 0 unless freed (``--free dead_time,baseline``, short ``t_d,b``) or fixed at
+a value (``--fix baseline=0.02``). The inlet u is an ideal pulse (``--inlet pulse``, the
+default), an ideal step for F-curves (``--inlet step``), or a measured inlet signal
+(``--inlet FILE``, a time/value CSV read like the curves), convolved exactly with the model.
+Values down to 5 % of the peak below zero are noise around a subtracted baseline and are
+fitted; a value further below zero is refused with its file, row and value. Decimal commas
+are detected (or ``--decimal ,``); ``--time-column`` and ``--value-column`` pick columns by
+name or 0-based index.
+
+``--errors`` sets the error model: ``combined`` (the default; additive plus proportional
+errors, ``Var = a² + (b model)²``, both estimated from the residuals by iterated weights, see
+:mod:`fitting.losses`), ``relative`` (errors proportional to the curve: refitted weighted by
+``1 / model²`` until the weights are those of its own curve, ``1 / |model|`` for the mean
+absolute error) or ``absolute`` (errors of one size, unweighted least squares). Unweighted
+least squares treats the peak, where proportional noise is largest, as precise as the tail,
+and its intervals are then too narrow; pure relative weights let a sample where the model is
+near zero (t = 0) take almost all the weight. The grid search (``--grid``) scores the
+unweighted loss, as the source did, so it runs with absolute errors.
+
+With ``--length L`` (m; there is no default) every ADM-family fit also reports the velocity
+``v`` and axial dispersion ``D_z`` in SI, networks their equivalent ``tau``, ``Pe`` and
+``D_z``, each with its standard error and 95 % interval (delta method,
+:mod:`fitting.physical`). Every number carries its unit, the file's time unit included.
 
 With ``--loss mae`` the least-squares multi-start fit is polished by a fit on the mean
 absolute error (which is not smooth enough for multi-start L-BFGS alone); the evaluations
@@ -72,8 +94,10 @@ __all__ = ["add_parser", "run"]
 #: Rates searched on the source's grid by ``--grid``.
 SOURCE_GRID_STEP, SOURCE_GRID_MAX = 0.125, 2.5
 #: Free parameters held at their fitted value in the grid search (the source did not search
-#: the outflow rate).
-GRID_HELD = ("k_out",)
+#: the outflow rate, and had no measurement model).
+GRID_HELD = ("k_out", "amplitude", "dead_time", "baseline")
+#: Short names accepted by ``--free`` for the measurement parameters.
+FREE_ALIASES = {"t_d": "dead_time", "b": "baseline"}
 #: Starts per compiled batch when ``--starts`` is large: progress is shown between batches.
 STARTS_PER_BATCH = 256
 #: The lock file that marks an output folder as being written.
@@ -119,12 +143,26 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--starts", type=int, default=None, metavar="N",
                         help="number of starts (default: the moment estimate for ADM and "
                         "tanks models, 8 for compartment networks)")
-    parser.add_argument("--errors", choices=("absolute", "relative"), default="absolute",
-                        help="measurement errors of equal size (default) or proportional to "
-                        "the curve (refit weighted by 1/model^2)")
+    parser.add_argument("--errors", choices=("absolute", "relative", "combined"), default=None,
+                        help="error model: combined (default: additive plus proportional, "
+                        "both estimated), relative (proportional to the curve) or absolute "
+                        "(equal size; the default with --grid)")
     parser.add_argument("--length", type=float, default=None, metavar="METRES",
-                        help="blender length L (m) for the equivalent v and D_z (no default: "
-                        "without it only tau and Pe are reported)")
+                        help="blender length L (m) for v and D_z in SI with their "
+                        "uncertainty (no default: without it only tau and Pe are reported)")
+    parser.add_argument("--inlet", default="pulse", metavar="pulse|step|FILE",
+                        help="inlet signal: an ideal pulse (default), an ideal step (F-curves) "
+                        "or a measured inlet signal (a time/value CSV), convolved exactly")
+    parser.add_argument("--free", action="append", default=[], metavar="NAMES",
+                        help="also fit measurement parameters fixed at 0 by default: "
+                        "dead_time (t_d), baseline (b); comma-separated or repeated")
+    parser.add_argument("--decimal", choices=("auto", ".", ","), default="auto",
+                        help="decimal separator of the files (default: detected)")
+    parser.add_argument("--time-column", default=None, metavar="NAME|INDEX",
+                        help="the time column by name or 0-based index (default: recognised)")
+    parser.add_argument("--value-column", default=None, metavar="NAME|INDEX",
+                        help="the concentration column by name or 0-based index (default: "
+                        "recognised, or the second of two columns)")
     parser.add_argument("--out", required=True, metavar="DIR", help="folder for the results")
     parser.set_defaults(func=run)
     return parser
@@ -208,7 +246,8 @@ def _parameter_settings(model, fixes: Sequence[str], ties: Sequence[str]) -> dic
         except ValueError:
             raise InputError(f"--fix {name}: {text!r} is not a number") from None
         default = model.defaults[name]
-        if not math.isfinite(value) or value < 0 or value > 1e100:
+        signed = default.min is None  # a baseline or dead time may be negative
+        if not math.isfinite(value) or (value < 0 and not signed) or abs(value) > 1e100:
             raise InputError(f"--fix {name}: value must be a finite non-negative number of "
                              f"sensible size, got {text}")
         if value == 0 and default.min is not None and default.min >= 0:
@@ -230,15 +269,66 @@ def _parameter_settings(model, fixes: Sequence[str], ties: Sequence[str]) -> dic
     return settings
 
 
-def _read_curves(files: Sequence[Path]) -> list:
+def _column(text: str | None) -> str | int | None:
+    """A ``--time-column``/``--value-column`` value: a 0-based index when all digits."""
+    if text is None:
+        return None
+    return int(text) if text.strip().isdigit() else text.strip()
+
+
+def _free_names(items: Sequence[str]) -> tuple[str, ...]:
+    """The measurement parameters of ``--free`` (comma-separated or repeated; t_d, b allowed)."""
+    from fitting.measurement import FREEABLE
+
+    names = []
+    for item in items:
+        for name in item.split(","):
+            name = FREE_ALIASES.get(name.strip(), name.strip())
+            if name not in FREEABLE:
+                raise InputError(f"--free: unknown measurement parameter {name!r}; choose "
+                                 f"from {', '.join(FREEABLE)} (or t_d, b)")
+            names.append(name)
+    return tuple(dict.fromkeys(names))
+
+
+def _inlet(text: str, curves: Sequence, args: argparse.Namespace):
+    """The inlet signal of ``--inlet``: pulse, step, or a file read like the curves."""
+    from fitting.data import DataError, read_inlet_csv
+    from fitting.measurement import Inlet
+
+    if text == "pulse":
+        return Inlet.pulse()
+    if text == "step":
+        return Inlet.step()
+    units = sorted({curve.time_unit for curve in curves})
+    if len(units) > 1:
+        raise InputError(f"--inlet: the curves are in different time units ({', '.join(units)});"
+                         " fit them separately with one inlet each")
+    try:
+        signal = read_inlet_csv(text, time_unit=units[0], decimal=args.decimal,
+                                time_column=_column(args.time_column),
+                                value_column=_column(args.value_column))
+        return Inlet.from_curve(signal)
+    except DataError as error:
+        raise InputError(f"--inlet: {error.compact()}") from None
+    except ValueError as error:
+        raise InputError(f"--inlet: {text}: {error}") from None
+
+
+def _read_curves(files: Sequence[Path], args: argparse.Namespace | None = None) -> list:
     from fitting.data import DataError, DataWarning, read_rtd_csv
 
+    options = {}
+    if args is not None:
+        options = {"decimal": args.decimal, "time_column": _column(args.time_column),
+                   "value_column": _column(args.value_column)}
     curves = []
     for path in files:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", DataWarning)
             try:
-                curves.append(read_rtd_csv(path))
+                # Raw values: the measurement model's amplitude takes the tracer amount.
+                curves.append(read_rtd_csv(path, normalise=False, **options))
             except DataError as error:
                 raise InputError(error.compact()) from None
         for warning in caught:
@@ -405,20 +495,33 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--starts: must be at least 1, got {args.starts}")
         if args.starts is not None and args.starts > 1_000_000:
             raise InputError(f"--starts: at most 1,000,000, got {args.starts}")
-        if args.grid and args.errors == "relative":
-            raise InputError("--grid scores the unweighted loss, as the source did; use it "
-                             "without --errors relative")
+        if args.errors is None:
+            args.errors = "absolute" if args.grid else "combined"
+        if args.grid and args.errors != "absolute":
+            raise InputError(f"--grid scores the unweighted loss, as the source did; use it "
+                             f"with --errors absolute (its default), not {args.errors}")
         if args.length is not None and not (math.isfinite(args.length) and args.length > 0):
             raise InputError(f"--length: must be a positive number of metres, got {args.length}")
         out = Path(args.out)
         _check_out(out)
-        models = _models(args.model)
+        from fitting.measurement import Inlet, measured
+
+        free = _free_names(args.free)
+        try:
+            models = [measured(m, Inlet.pulse(), free) for m in _models(args.model)]
+        except ValueError as error:
+            raise InputError(f"--model: {error}") from None
         if len(models) > 1 and args.grid:
             raise InputError("--grid compares a fit with the source's grid search; use it with "
                              "one --model")
         every_settings = _settings_for_each(models, args.fix, args.tie)
+        curves = _read_curves(files, args)
+        inlet = _inlet(args.inlet, curves, args)
+        try:
+            models = [measured(m.base, inlet, free) for m in models]
+        except ValueError as error:
+            raise InputError(f"--inlet: {error}") from None
         model, settings = models[0], every_settings[0]
-        curves = _read_curves(files)
         for each, each_settings in zip(models, every_settings, strict=True):
             _check_fixed_curves(each, each_settings, curves, files)
     except InputError as error:
@@ -532,7 +635,7 @@ class _Run:
                     continue
                 try:
                     result = _fit_one(self.model, curve, self.settings, args.loss, self.starts,
-                                      args.errors == "relative", self.stop)
+                                      args.errors, self.stop)
                 except ValueError as error:
                     with self.writing:
                         self.status = error_line("fit", f"{path}: {error}")
@@ -555,7 +658,7 @@ class _Run:
                     write_png(out / f"{curve.name}.png", image)
                     self.records.append(record)
                 if len(self.curves) == 1:
-                    _print_single(result, grid, record, fit_table)
+                    _print_single(result, grid, record, fit_table, args.length)
                 bar.update(1)
                 if grid is not None and grid.interrupted:
                     self.stop.set()
@@ -585,7 +688,7 @@ class _Run:
             try:
                 result = _fit_one(model, curve, settings, args.loss,
                                   args.starts or model.default_starts,
-                                  args.errors == "relative", self.stop)
+                                  args.errors, self.stop)
             except ValueError as error:
                 with self.writing:
                     self.status = error_line("fit", f"{path}: model {model.name}: {error}")
@@ -641,30 +744,30 @@ class _Run:
 
 
 def _fit_one(model, curve, settings: dict, loss: str, starts: int | None,
-             relative: bool = False, stop: threading.Event | None = None):
+             errors: str = "absolute", stop: threading.Event | None = None):
     """Fit one curve; the mean absolute error is polished from the least-squares optimum.
 
     The MAE is not smooth, so multi-start L-BFGS on it stalls at kinks; the least-squares
     multi-start finds the basin and a single MAE fit from there finishes. The evaluations
-    and times of both stages are reported together. With `relative` the least-squares fit
-    is the relative-error fit and the MAE polish is weighted by ``1 / |model|``. Many starts
-    run in batches of :data:`STARTS_PER_BATCH`, with progress between them.
+    and times of both stages are reported together. With `errors` ``"relative"`` or
+    ``"combined"`` the least-squares fit is the weighted fit of that error model and the
+    MAE polish is weighted by the square root of its weights (``1 / |model|`` for relative
+    errors). Many starts run in batches of :data:`STARTS_PER_BATCH`, with progress between
+    them.
     """
     import numpy as np
 
     from axialmix._progress import progress_bar
     from fitting.fit import fit
-    from fitting.result import RelativeErrors
     from fitting.solve import MultiStart
 
-    errors = RelativeErrors() if relative else None
     if starts is not None and starts > STARTS_PER_BATCH:
         first, done = None, 0
         bar = progress_bar(total=starts, description=f"starts ({curve.name})", unit="start")
         try:
             while done < starts and not (stop is not None and stop.is_set()):
                 count = min(STARTS_PER_BATCH, starts - done)
-                batch = fit(model, curve, settings, loss="sse", relative_errors=errors,
+                batch = fit(model, curve, settings, loss="sse", errors=errors,
                             multistart=MultiStart(n_starts=max(count, 2), seed=done))
                 if first is None or batch.loss < first.loss:
                     evaluations = batch.n_evaluations + (first.n_evaluations if first else 0)
@@ -680,11 +783,11 @@ def _fit_one(model, curve, settings: dict, loss: str, starts: int | None,
         finally:
             bar.close()
     else:
-        first = fit(model, curve, settings, loss="sse", relative_errors=errors,
+        first = fit(model, curve, settings, loss="sse", errors=errors,
                     multistart=MultiStart(n_starts=starts))
     if loss == "sse" or (stop is not None and stop.is_set()):
         return first
-    weights = np.sqrt(first.weights) if relative else None
+    weights = np.sqrt(first.weights) if errors != "absolute" else None
     second = fit(model, curve, first.restart_parameters(), loss=loss, weights=weights,
                  multistart=MultiStart(n_starts=1))
     return dataclasses.replace(
@@ -692,13 +795,20 @@ def _fit_one(model, curve, settings: dict, loss: str, starts: int | None,
         n_evaluations=first.n_evaluations + second.n_evaluations,
         wall_time=first.wall_time + second.wall_time,
         n_starts=first.n_starts,
+        error_model=first.error_model,
     )
 
 
-def _print_single(result, grid, record, fit_table) -> None:
-    print(fit_table(result, grid))
+def _print_single(result, grid, record, fit_table, length: float | None = None) -> None:
+    print(fit_table(result, grid, length))
     for sentence in record["identifiability"]:
         print(f"  * {sentence}")
+    for name, meaning in record.get("meanings", {}).items():
+        if name in ("tau", "amplitude") and name in result.values:
+            print(f"  * {meaning[0].upper()}{meaning[1:]}.")
+    if result.error_model is not None:
+        unit = result.curve.value_unit or ""
+        print(f"  * Errors: {result.error_model.describe(unit)}.")
     equivalent = record.get("equivalent_adm")
     if equivalent is not None and "variance_ratio" in equivalent:
         unit = result.time_unit
@@ -709,10 +819,6 @@ def _print_single(result, grid, record, fit_table) -> None:
         print("  equivalent closed-closed ADM (same mean and variance): tau = "
               f"{_show(equivalent[f'tau_{unit}'])} {unit}, Pe = {_show(equivalent['peclet'])}"
               f"{transport}")
-    elif equivalent is not None and equivalent["length_m"] is not None:
-        print(f"  transport (L = {equivalent['length_m']:g} m): v = "
-              f"{_show(equivalent['velocity_m_per_s'])} m/s, D_z = "
-              f"{_show(equivalent['dispersion_m2_per_s'])} m^2/s")
 
 
 def _show(value: float | None) -> str:
