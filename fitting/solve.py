@@ -84,6 +84,7 @@ __all__ = [
     "compiled_solver",
     "enable_compilation_cache",
     "make_plan",
+    "model_identity",
     "padded_length",
     "run_solver",
     "second_order_distance",
@@ -406,7 +407,8 @@ class _Program:
     def _exported(self, specs) -> Callable:
         shapes = tuple((s.shape, str(s.dtype)) for s in specs)
         digest = hashlib.sha256(repr((self.key, shapes)).encode()).hexdigest()[:24]
-        path = _EXPORT_FOLDER / f"{_source_fingerprint()}-{self.name}-{digest}{EXPORT_SUFFIX}"
+        label = "".join(c if c.isalnum() or c in "-_" else "_" for c in self.name)[:40]
+        path = _EXPORT_FOLDER / f"{_source_fingerprint()}-{label}-{digest}{EXPORT_SUFFIX}"
         try:
             exported = jax_export.deserialize(bytearray(path.read_bytes()))
             if tuple((a.shape, str(a.dtype)) for a in exported.in_avals) == shapes:
@@ -715,11 +717,38 @@ def _single_start_function(model, layout: Layout, options: SolverPlan) -> Callab
     return solve
 
 
+def model_identity(model) -> tuple | None:
+    """What identifies a model's function in another process, or ``None``.
+
+    A built-in model (:data:`fitting.models.MODELS`) by its name; a model that declares an
+    ``export_identity`` (a tuple of strings and bytes) by that; a built-in model wrapped in a
+    measurement (a model with ``base``, ``inlet`` — with a ``key`` — and ``free``, such as
+    ``fitting.measurement.MeasuredModel``) by its class, the base's identity, the inlet and
+    the free measurement parameters. Other models (a user's function) have none: their
+    programs are traced in each process, never exported.
+
+    **Arguments:** `model`: a :class:`~fitting.models.Model`.
+
+    **Returns:** a tuple, or ``None``.
+    """
+    declared = getattr(model, "export_identity", None)
+    if declared is not None:
+        return ("declared", tuple(declared))
+    if MODELS.get(getattr(model, "name", None)) is model:
+        return ("built-in", model.name)
+    base, inlet = getattr(model, "base", None), getattr(model, "inlet", None)
+    if base is not None and hasattr(inlet, "key"):
+        inner = model_identity(base)
+        if inner is not None:
+            return (type(model).__qualname__, inner, inlet.key,
+                    tuple(getattr(model, "free", ())))
+    return None
+
+
 def _export_key(model, *parts) -> tuple | None:
-    """The key of a built-in model's program for :mod:`jax.export`; ``None`` for other models
-    (a user's function cannot be recognised in another process)."""
-    from_registry = MODELS.get(getattr(model, "name", None))
-    return (model.name, *map(repr, parts)) if from_registry is model else None
+    """The key of a model's program for :mod:`jax.export` (see :func:`model_identity`)."""
+    identity = model_identity(model)
+    return None if identity is None else (identity, *map(repr, parts))
 
 
 def _run(program: _Program, arguments: tuple, times: list[float]) -> dict:

@@ -81,6 +81,11 @@ def _peclet_from_variance_ratio_jvp(primals, tangents):
     return peclet, ratio_dot / slope
 
 
+# Jitted, so that eager calls (reports evaluate it on plain numbers, many times a fit) reuse
+# one compiled program instead of tracing the Newton loop again on every call.
+peclet_from_variance_ratio = jax.jit(peclet_from_variance_ratio)
+
+
 def peclet_from_moments(mean: ArrayLike, variance: ArrayLike) -> jax.Array:
     """Return the closed–closed Peclet number that reproduces a measured mean and variance.
 
