@@ -9,13 +9,14 @@ Each row is a fresh Python process, timed end to end (wall clock), in this order
   run with the same cache folder;
 * the same curve with ``--model four-compartment --fix k_out=0.8``: first and second run;
 * the peer: ``scipy.optimize.curve_fit`` of the closed–closed axial dispersion model on the
-  same curve (divided by its trapezoid area, as ``axialmix fit`` reads it), the model
-  written here in NumPy from its exact eigenvalue series (independent of JAX and of
-  axialmix), started from the moment estimates.
+  same raw curve, ``c(t) = A E(t)`` as ``axialmix fit`` models it by default (amplitude
+  fitted, no dead time or baseline), ``E`` written here in NumPy from its exact eigenvalue
+  series (independent of JAX and of axialmix), started from the moment estimates.
 
 The table gives seconds, the ratio to ``import jax`` and the targets: ADM second run ≤ 3×,
 first run ≤ 8×, four-compartment second run ≤ 5×, ``axialmix --help`` ≤ 1 s. The fitted
-tau and Pe of the ADM fit and of ``curve_fit`` are printed too (the same optimum).
+tau and Pe of the ADM fit and of ``curve_fit`` are printed too (the same optimum when the
+fit command's error model is ``absolute``; its default may weight the points).
 
     python benchmarks/startup.py [--repeat N]
 """
@@ -68,7 +69,6 @@ def exit_age(t, tau, peclet, count=400):
 
 data = np.loadtxt(sys.argv[1], delimiter=",", comments="#", skiprows=2)
 t, y = data[:, 0], data[:, 1]
-y = y / np.trapezoid(y, t)  # E(t): the curve divided by its trapezoid area, as axialmix reads it
 density = np.clip(y, 0, None)
 area = np.trapezoid(density, t)
 mean = np.trapezoid(t * density, t) / area
@@ -78,7 +78,12 @@ ratio = variance / mean**2
 peclet = 2.0
 for _ in range(100):
     peclet = 2 / ratio * (1 - (1 - np.exp(-peclet)) / peclet)
-(tau, pe), _ = curve_fit(exit_age, t, y, p0=[mean, peclet], bounds=([1e-9, 1e-9], np.inf))
+def measured(t, tau, peclet, amplitude):
+    # The raw values as axialmix fit reads them: c(t) = A E(t) (no dead time, no baseline).
+    return amplitude * exit_age(t, tau, peclet)
+
+(tau, pe, _), _ = curve_fit(measured, t, y, p0=[mean, peclet, area],
+                            bounds=([1e-9, 1e-9, 0.0], np.inf))
 print(f"{tau:.6g} {pe:.6g}")
 '''
 
@@ -132,11 +137,12 @@ def run_once() -> tuple[list[tuple[str, float]], dict[str, tuple[float, float]]]
             record = json.loads((out / f"{CURVE.stem}.json").read_text())
             values = record["parameters"]
             if name == "adm":
-                fitted["axialmix fit (adm)"] = (values["tau"]["value"],
-                                                values["peclet"]["value"])
+                errors = record.get("error_model", {}).get("kind", "absolute")
+                fitted[f"axialmix fit (adm, {errors} errors)"] = (
+                    values["tau"]["value"], values["peclet"]["value"])
         seconds, printed = _timed([sys.executable, "-c", PEER, str(CURVE)], environment)
         rows.append(("scipy curve_fit (peer)", seconds))
-        fitted["scipy curve_fit"] = tuple(float(x) for x in printed.split())
+        fitted["scipy curve_fit (unweighted)"] = tuple(float(x) for x in printed.split())
     return rows, fitted
 
 

@@ -59,7 +59,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 from jax import export as jax_export
 
 import axialmix  # noqa: F401  (float64 before any JAX array is made)
@@ -425,6 +424,8 @@ class _Program:
 
 def _lbfgs(objective: Callable, u0, options: SolverPlan):
     """Minimise `objective` from `u0` with optax L-BFGS + zoom line search in a while_loop."""
+    import optax  # only L-BFGS and Adam need it (a fifth of a second to import)
+
     solver = optax.lbfgs(
         memory_size=options.memory_size,
         linesearch=optax.scale_by_zoom_linesearch(
@@ -474,6 +475,8 @@ def _lbfgs(objective: Callable, u0, options: SolverPlan):
 
 def _adam(objective: Callable, u0, options: SolverPlan, max_steps: int):
     """Minimise `objective` with Adam for at most `max_steps`; returns the best point seen."""
+    import optax  # only L-BFGS and Adam need it (a fifth of a second to import)
+
     solver = optax.adam(options.learning_rate)
     value_and_grad = jax.value_and_grad(objective)
 

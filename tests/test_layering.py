@@ -44,7 +44,7 @@ DEPRECATED_FORWARDS = {
     ("fitting.result", "fitting.diagnostics"),
 }
 #: Optional or heavy third-party packages a fitting module may import inside a function.
-OPTIONAL_HEAVY = ("matplotlib", "statsmodels", "pandas", "dask")
+OPTIONAL_HEAVY = ("matplotlib", "statsmodels", "pandas", "dask", "optax")
 IN_FUNCTION_MODULES = ("fitting.cli",)  # the command line loads what a sub-command needs
 
 
