@@ -22,8 +22,9 @@
   lengths share programs. Programs are kept per model, parameter layout, settings and
   padded length.
 * Across processes (after :func:`enable_compilation_cache`): the compiled programs are kept
-  by JAX's persistent compilation cache, and the programs of the built-in models are also
-  kept as :mod:`jax.export` files in the user's cache folder, keyed by the package version
+  by JAX's persistent compilation cache, and the programs of the built-in models (also
+  when wrapped in a measurement, :func:`model_identity`) are kept as :mod:`jax.export` files
+  in the user's cache folder, keyed by the package version
   and source, the JAX version, the model, layout, settings and shapes, so a later run loads
   them instead of tracing them again.
 * Starts (:func:`start_points`): the start value, the method-of-moments estimate, then random
@@ -33,8 +34,12 @@
   (converged: no further decrease possible at this precision) — for Levenberg–Marquardt
   each only with a step below ``xtol`` in every coordinate, as its post-check asks, or
   after three such changes in a row —, no step that decreases the loss (the
-  line search, or Levenberg–Marquardt's damping growing past 1e16), a non-finite loss, or
-  ``max_steps`` iterations (not converged); see :class:`Status`.
+  line search, or Levenberg–Marquardt's damping growing past 1e16), a non-finite loss,
+  ``max_steps`` iterations, or (Levenberg–Marquardt) a loss falling by less than 0.1 % over
+  20 iterations (status SLOW) — not converged; see :class:`Status`. Where
+  Levenberg–Marquardt's best start is not accepted, :class:`MultiStartSolver` continues
+  with Newton's method on the full Hessian (a singular Gauss–Newton curvature) or redoes
+  the start with L-BFGS (a slow crawl along a curved valley).
 * Checking (least squares): a stopped fit counts as converged only if one Gauss–Newton step
   from it is below ``xtol`` (computed in NumPy from the returned Jacobian). Where the
   Gauss–Newton curvature ``JᵀJ`` is singular (a direction the model curve does not change
