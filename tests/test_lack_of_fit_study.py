@@ -127,6 +127,11 @@ def test_exchange_zone_curves_flag_the_adm_and_aicc_picks_the_exchange_model(exc
     converged = _rate([r.converged for r in exchange])
     beta_error = np.median([abs(r.values["beta"] / t[1] - 1) for r, t in
                             zip(exchange, truths, strict=True)])
+    coverage = {}
+    for name, index in (("peclet", 0), ("beta", 1), ("k_d", 2)):
+        coverage[name] = _rate([r.ci95[name][0] < t[index] < r.ci95[name][1]
+                                for r, t in zip(exchange, truths, strict=True)])
+    coverage["tau"] = _rate([r.ci95["tau"][0] < TAU < r.ci95["tau"][1] for r in exchange])
     print(f"\n{CURVES} exchange-zone curves (independent mpmath inversion; 60 points to 4 mean "
           "residence times, 2 % additive noise):")
     print(f"  adm flagged systematic          {adm_flagged:.3f}")
@@ -135,9 +140,13 @@ def test_exchange_zone_curves_flag_the_adm_and_aicc_picks_the_exchange_model(exc
     print(f"  adm-exchange recommended alone  {recommended:.3f}")
     print(f"  adm-exchange converged          {converged:.3f}")
     print(f"  median |beta/beta_true - 1|     {beta_error:.3f}")
+    print("  95 % interval coverage          "
+          + ", ".join(f"{name} {rate:.3f}" for name, rate in coverage.items()))
     assert adm_flagged >= 0.9
     assert exchange_flagged <= 0.1
     assert aicc_picks >= 0.9
+    # The dead zone's intervals hold what they say (the 90-99 % for a 95 % interval).
+    assert 0.9 <= coverage["beta"] <= 0.99 and 0.9 <= coverage["k_d"] <= 0.99
 
 
 def test_plain_adm_curves_are_rarely_flagged_or_beaten_by_the_exchange_model():
