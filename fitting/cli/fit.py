@@ -1,6 +1,7 @@
 """The ``axialmix fit`` sub-command: fit residence-time curves from CSV files.
 
-    axialmix fit FILE_OR_FOLDER... --model adm|adm-fv|adm-open|tanks|four-compartment|NET.json
+    axialmix fit FILE_OR_FOLDER... --model adm|adm-fv|adm-open|tanks|four-compartment|
+                                           adm-exchange|tanks-exchange|adm-tank|NET.json
                  (a network file may be .toml; several models, comma-separated, to compare)
                  [--fix NAME=VALUE] [--tie NAME=OTHER] [--free dead_time,baseline]
                  [--inlet pulse|step|FILE] [--loss sse|mae] [--grid] [--starts N]
@@ -129,9 +130,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         help="CSV files (time, concentration) or folders of them (*.csv, "
                         "any case)")
     parser.add_argument("--model", default="adm",
-                        help="adm, adm-fv, adm-open, tanks, four-compartment, or a network "
-                        "file (.json or .toml) (default: adm); several, comma-separated "
-                        "(adm,tanks), are fitted and compared in one table")
+                        help="adm, adm-fv, adm-open, tanks, four-compartment, adm-exchange "
+                        "(ADM with a dead zone), tanks-exchange, adm-tank (ADM then a stirred "
+                        "tank), or a network file (.json or .toml) (default: adm); several, "
+                        "comma-separated (adm,adm-exchange,tanks), are fitted and compared in "
+                        "one table")
     parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                         help="hold a parameter at a value (repeatable)")
     parser.add_argument("--tie", action="append", default=[], metavar="NAME=OTHER",
