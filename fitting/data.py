@@ -162,7 +162,8 @@ def _pick_column(table: Table, wanted: str | int | None, candidates: set[str],
     matches = [c for c in table.columns if c.name in candidates or c.label.lower() in candidates]
     if len(matches) > 1:
         listed = ", ".join(repr(c.label) for c in matches)
-        raise table.error(f"several possible {role} columns ({listed}); choose one")
+        raise table.error(f"several possible {role} columns ({listed}); choose one with "
+                          f"{role}_column (--{role}-column)")
     return matches[0] if matches else None
 
 
@@ -182,10 +183,10 @@ def _columns(table: Table, time_column, value_column) -> tuple[Column, Column]:
         value = table.columns[1 - time.index]
     if time is None:
         raise table.error(f"missing time column (columns: {labels}); name it 't' or 'time', "
-                          "or pass time_column")
+                          "or choose it with time_column (--time-column)")
     if value is None:
         raise table.error(f"extra columns, cannot tell which is the concentration (columns: "
-                          f"{labels}); pass value_column")
+                          f"{labels}); choose it with value_column (--value-column)")
     if time.index == value.index:
         raise table.error(f"time and value are the same column {time.label!r}")
     return time, value
@@ -258,7 +259,17 @@ def read_rtd_csv(
             raise table.error(f"unknown time unit {time_col.unit!r} in {time_col.label!r} "
                               f"(known: s, ms, min, h)")
         time_unit = _TIME_UNITS[time_col.unit.lower()]
-    rows, data = table.numbers([time_col.index, value_col.index])
+    try:
+        rows, data = table.numbers([time_col.index, value_col.index])
+    except DataError as error:
+        # Detection looks at the first data row only; a first row without decimals ("0;0")
+        # leaves decimal commas further down undetected, so read once more with them.
+        if not (decimal == "auto" and table.decimal == "." and table.delimiter != ","
+                and error.problem.startswith("non-numeric cell") and "," in error.problem):
+            raise
+        table = read_table(path, decimal=",", suffix_units=tuple(_TIME_UNITS))
+        time_col, value_col = _columns(table, time_column, value_column)
+        rows, data = table.numbers([time_col.index, value_col.index])
     time, value = data[:, 0], data[:, 1]
     problems = []
     bad = _first(time < 0)

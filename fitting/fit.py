@@ -590,13 +590,39 @@ def _refit_with_combined_errors(model, curves: Sequence[Curve], first: Sequence[
     method = (f"additive plus proportional errors: reweighted by 1/(a^2 + (b model)^2), a and "
               f"b estimated from the residuals, until consistent ({passes} passes)")
     return [
-        dataclasses.replace(
+        _with_estimated_weight_shape(dataclasses.replace(
             r, n_evaluations=int(e), wall_time=float(w), compile_time=float(c),
             method=f"{r.method}; {method}", n_starts=f.n_starts, init_params=f.init_params,
-            settings=settings, error_model=ErrorEstimate("combined", a, b, passes))
+            settings=settings, error_model=ErrorEstimate("combined", a, b, passes)))
         for r, f, e, w, c, (a, b) in zip(results, first, evaluations, wall, compile_time, used,
                                          strict=True)
     ]
+
+
+def _with_estimated_weight_shape(result: FitResult) -> FitResult:
+    """Count the share ``a² : (b m)²`` of the combined error model as a fitted parameter.
+
+    The weights' shape is estimated from the same residuals that then give ``s²``, so it
+    takes one degree of freedom: ``s² = Σ w r² / (n - p - 1)``, and the intervals use the
+    Student t of ``n - p - 1`` degrees of freedom (as for a variance-function parameter in
+    generalised least squares with estimated weights).
+    """
+    if result.loss_name != "sse" or result.dof <= 1:
+        return result
+    dof = result.dof - 1
+    factor = math.sqrt(result.dof / dof)
+    quantile = t_quantile(dof)
+    stderr, ci95 = {}, {}
+    for name, error in result.stderr.items():
+        if error is None:
+            stderr[name], ci95[name] = None, None
+            continue
+        stderr[name] = error * factor
+        ci95[name] = interval(result.values[name], quantile * stderr[name],
+                               result.init_params[name])
+    return dataclasses.replace(result, stderr=stderr, ci95=ci95,
+                               covariance=result.covariance * factor**2,
+                               sigma=result.sigma * factor, dof=dof)
 
 
 def _with_effective_dof(result: FitResult) -> FitResult:

@@ -205,20 +205,21 @@ def leverages(jacobian: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return np.clip(np.sum(basis[:, keep] ** 2, axis=1), 0.0, 1.0)
 
 
-#: Largest share of the variance scale the proportional part may take in the search, so that
-#: ``a`` stays above zero by a margin that keeps every weight finite (``a/b`` above 1e-5 of
-#: the peak): a numerical bound, far below any detector's noise floor.
-_LARGEST_SHARE = 1.0 - 1e-10
+#: Range of the proportional share ``f`` searched, in ``logit f``: up to ``1 - f = 4e-18``,
+#: so an absent additive part is found as (numerically) zero, never exactly zero.
+_LOGIT_RANGE = 40.0
 
 
 def estimate_combined_errors(residual: np.ndarray, model_values: np.ndarray,
                              leverage: np.ndarray | None = None) -> tuple[float, float]:
     """Estimate ``(a, b)`` of ``Var(y_i) = a² + (b m_i)²`` from a fit's residuals.
 
-    Writes the variance as ``s² ((1 - f) + f (m_i / m_max)²)`` with ``f`` in [0, 1] the
+    Writes the variance as ``s² ((1 - f) + f (m_i / m_max)²)`` with ``f`` in (0, 1) the
     proportional share; for each ``f`` the scale ``s²`` has a closed form, and ``f`` maximises
     the Gaussian pseudo-likelihood ``-Σ [ln v_i + r̃_i² / v_i] / 2`` with
-    ``r̃_i² = r_i² / (1 - h_i)`` (a coarse grid in ``logit f``, then Brent's method).
+    ``r̃_i² = r_i² / (1 - h_i)`` (a grid in ``logit f``, then Brent's method). Points where
+    both the model and the residual are exactly zero (a sample before the tracer arrives,
+    fitted exactly) say nothing about either part and are left out.
 
     **Arguments:**
 
@@ -232,33 +233,38 @@ def estimate_combined_errors(residual: np.ndarray, model_values: np.ndarray,
     residual = np.asarray(residual, float)
     model_values = np.asarray(model_values, float)
     leverage = np.zeros_like(residual) if leverage is None else np.asarray(leverage, float)
+    informative = (residual != 0) | (model_values != 0)
+    residual, model_values = residual[informative], model_values[informative]
+    leverage = leverage[informative]
     scale = float(np.max(np.abs(model_values), initial=0.0))
     squared = residual**2 / np.clip(1.0 - leverage, 1e-3, None)
-    if scale == 0.0 or not np.any(squared > 0):
+    if squared.size == 0 or not np.any(squared > 0):
+        return 0.0, 0.0
+    if scale == 0.0:
         return math.sqrt(float(np.mean(squared))), 0.0
     relative = (model_values / scale) ** 2
 
-    def shape(share: float) -> np.ndarray:
-        return (1.0 - share) + share * relative
+    def shares(logit: float) -> tuple[float, float]:
+        """``(1 - f, f)``, each without cancellation."""
+        return 1.0 / (1.0 + math.exp(logit)), 1.0 / (1.0 + math.exp(-logit))
 
     def negative_log_likelihood(logit: float) -> float:
-        share = _LARGEST_SHARE / (1.0 + math.exp(-logit))
-        g = shape(share)
+        additive, proportional = shares(logit)
+        g = additive + proportional * relative
         return float(np.sum(np.log(g)) + squared.size * math.log(np.mean(squared / g)))
 
-    grid = np.linspace(-25.0, 25.0, 101)
+    grid = np.linspace(-_LOGIT_RANGE, _LOGIT_RANGE, 161)
     values = [negative_log_likelihood(x) for x in grid]
     best = int(np.argmin(values))
     low, high = grid[max(best - 1, 0)], grid[min(best + 1, grid.size - 1)]
     logit = grid[best]
-    if high > low:
-        found = optimize.minimize_scalar(negative_log_likelihood, bounds=(low, high),
-                                         method="bounded", options={"xatol": 1e-6})
-        if found.fun <= values[best]:
-            logit = float(found.x)
-    share = _LARGEST_SHARE / (1.0 + math.exp(-logit))
-    variance = float(np.mean(squared / shape(share)))
-    return math.sqrt(variance * (1.0 - share)), math.sqrt(variance * share) / scale
+    found = optimize.minimize_scalar(negative_log_likelihood, bounds=(low, high),
+                                     method="bounded", options={"xatol": 1e-6})
+    if found.fun <= values[best]:
+        logit = float(found.x)
+    additive, proportional = shares(logit)
+    variance = float(np.mean(squared / (additive + proportional * relative)))
+    return math.sqrt(variance * additive), math.sqrt(variance * proportional) / scale
 
 
 def combined_weights(model_values: np.ndarray, additive: float,

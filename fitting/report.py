@@ -33,7 +33,7 @@ from fitting.diagnostics import ModelComparison, identifiability
 from fitting.gridsearch import GridResult
 from fitting.measurement import MeasuredModel, observed_response
 from fitting.models import get_model
-from fitting.physical import physical_quantities
+from fitting.physical import physical_quantities, quantity_unit
 from fitting.result import FitResult
 
 __all__ = [
@@ -445,10 +445,13 @@ def _physical_keys(records: Sequence[Mapping[str, Any]]) -> list[str]:
     """The physical quantities of the records that are not parameters of theirs, in order."""
     keys: list[str] = []
     for record in records:
-        own = set(record["parameters"])
-        for key in record.get("physical") or {}:
+        own = record["parameters"]
+        for key, entry in (record.get("physical") or {}).items():
             stem = key.rsplit("_", 1)[0] if key.startswith("tau_") else key
-            if key not in keys and stem not in own and key not in own:
+            tau = (own.get("tau") or {}).get("value")
+            repeats = stem in own or (key.startswith("mean_residence_time")
+                                      and entry.get("value") == tau)
+            if key not in keys and not repeats and entry.get("value") is not None:
                 keys.append(key)
     return keys
 
@@ -457,12 +460,14 @@ def summary_table(records: Sequence[Mapping[str, Any]]) -> str:
     """The readable summary table of several fits (value ± standard error per parameter, and
     per physical quantity: a network's equivalent tau, Pe and D_z, an ADM's v and D_z)."""
     names = list(records[0]["parameters"]) if records else []
-    physical = _physical_keys(records)
+    # The moments behind a network's equivalent ADM stay in the CSV and JSON files.
+    physical = [key for key in _physical_keys(records) if not key.startswith("variance")]
     with_grid = any("grid_search" in r for r in records)
     units = records[0]["parameters"] if records else {}
     labels = [_labelled(name, units[name].get("unit", "")) for name in names]
-    header = ["data", *labels, *physical, "loss", "evaluations", "time (s)", "converged",
-              "lack of fit"]
+    time_unit = records[0].get("time_unit", "s") if records else "s"
+    header = ["data", *labels, *(_labelled(*quantity_unit(key, time_unit)) for key in physical),
+              "loss", "evaluations", "time (s)", "converged", "lack of fit"]
     if with_grid:
         header += ["grid loss", "grid evaluations"]
     rows = []
