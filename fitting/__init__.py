@@ -1,8 +1,9 @@
 """fitting: inverse problems on residence-time curves (data in, parameters and uncertainty out).
 
 Layers, each importing only those before it: :mod:`~fitting.parameters`,
-:mod:`~fitting.losses`, :mod:`~fitting.data`, :mod:`~fitting.models`, :mod:`~fitting.solve`,
-:mod:`~fitting.uncertainty`, :mod:`~fitting.result`, :mod:`~fitting.fit`,
+:mod:`~fitting.losses`, :mod:`~fitting.data`, :mod:`~fitting.models`,
+:mod:`~fitting.measurement`, :mod:`~fitting.solve`, :mod:`~fitting.uncertainty`,
+:mod:`~fitting.result`, :mod:`~fitting.physical`, :mod:`~fitting.fit`,
 :mod:`~fitting.diagnostics`, :mod:`~fitting.gridsearch`, :mod:`~fitting.report`,
 :mod:`~fitting.cli`. (The function ``fit`` is imported from its module,
 ``from fitting.fit import fit``: the attribute ``fitting.fit`` is that module.) The names
@@ -22,6 +23,11 @@ _PUBLIC = {
     "DataWarning": "fitting.data",
     "read_rtd_csv": "fitting.data",
     "read_many": "fitting.data",
+    "read_inlet_csv": "fitting.data",
+    "Inlet": "fitting.measurement",
+    "measured": "fitting.measurement",
+    "CombinedErrors": "fitting.losses",
+    "physical_quantities": "fitting.physical",
     "Model": "fitting.models",
     "MODELS": "fitting.models",
     "get_model": "fitting.models",
