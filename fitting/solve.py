@@ -49,6 +49,7 @@
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import enum
 import functools
@@ -753,6 +754,37 @@ def model_identity(model) -> tuple | None:
     return None
 
 
+#: Solver programs of this process by (model, layout, plan), most recently used last.
+_PROGRAMS: collections.OrderedDict = collections.OrderedDict()
+#: Solver programs kept at most (each holds its compiled executables).
+_MAX_PROGRAMS = 64
+
+
+def _solver_program(model, layout: Layout, options: SolverPlan) -> _Program:
+    """The single-start program of a model, layout and plan, shared within the process.
+
+    A plan without warm-up runs on the program of the same plan with a warm-up when this
+    process has one (the warm-up is skipped at run time, ``warm`` false), so the one-start
+    refits after a multi-start fit (relative or combined errors, profiles) compile and load
+    nothing new.
+    """
+    key = (model, layout, options)
+    program = _PROGRAMS.get(key)
+    if program is None and options.warmup_steps == 0:
+        program = next((found for (m, lay, plan), found in reversed(_PROGRAMS.items())
+                        if m is model and lay == layout
+                        and dataclasses.replace(plan, warmup_steps=0) == options), None)
+    if program is None:
+        program = _Program(_single_start_function(model, layout, options),
+                           f"solve-{model.name}", _export_key(model, layout, options))
+        _PROGRAMS[key] = program
+        while len(_PROGRAMS) > _MAX_PROGRAMS:
+            _PROGRAMS.popitem(last=False)
+    else:
+        _PROGRAMS.move_to_end(next(k for k, v in _PROGRAMS.items() if v is program))
+    return program
+
+
 def _export_key(model, *parts) -> tuple | None:
     """The key of a model's program for :mod:`jax.export` (see :func:`model_identity`)."""
     identity = model_identity(model)
@@ -809,8 +841,7 @@ class MultiStartSolver:
         if batch not in ("curves", "bases"):
             raise ValueError(f"batch must be 'curves' or 'bases', got {batch!r}")
         self.model, self.layout, self.options, self.batch = model, layout, options, batch
-        self.program = _Program(_single_start_function(model, layout, options),
-                                f"solve-{model.name}", _export_key(model, layout, options))
+        self.program = _solver_program(model, layout, options)
         self._lbfgs: _Program | None = None
 
     def __call__(self, starts, warm, base, time, observed, weights) -> tuple[dict, float, float]:
