@@ -253,7 +253,8 @@ def test_result_report_and_json_summary(adm_single_start):
 
 
 def test_registry_and_argument_errors():
-    assert set(MODELS) == {"adm", "adm-fv", "adm-open", "tanks", "four-compartment"}
+    assert set(MODELS) == {"adm", "adm-fv", "adm-open", "tanks", "four-compartment",
+                           "adm-exchange", "tanks-exchange", "adm-tank"}
     with pytest.raises(ValueError, match="unknown model 'adm2'"):
         get_model("adm2")
     curve = (TIME, np.asarray(exit_age_closed(TIME, TAU, 5.0)))
