@@ -251,3 +251,30 @@ def test_fixed_amplitude_fits_a_normalised_curve():
                  {"amplitude": Parameter(1.0, vary=False)})
     assert result.values["tau"] == pytest.approx(TAU, rel=EXACT)
     assert result.stderr["amplitude"] is None
+
+
+def test_velocity_and_dispersion_errors_follow_the_delta_method():
+    from fitting.physical import physical_quantities
+
+    time, clean = _shared_curve()
+    rng = np.random.default_rng(8)
+    noisy = clean + 0.01 * clean.max() * rng.standard_normal(time.size)
+    result = fit(measured("adm"), Curve("noisy", time, noisy))
+    length = 0.31
+    quantities = physical_quantities(result, length)
+    tau, peclet = result.values["tau"], result.values["peclet"]
+    names = list(result.free_names)
+    i, j = names.index("tau"), names.index("peclet")
+    c = result.covariance
+    # v = L / tau and D_z = L² / (tau Pe): relative variances from the covariance of ln tau
+    # and ln Pe, written out independently of fitting.physical.
+    relative_v = np.sqrt(c[i, i]) / tau
+    relative_d = np.sqrt(c[i, i] / tau**2 + c[j, j] / peclet**2 + 2 * c[i, j] / (tau * peclet))
+    velocity, dispersion = quantities["velocity_m_per_s"], quantities["dispersion_m2_per_s"]
+    assert velocity.value == pytest.approx(length / tau, rel=1e-12)
+    assert dispersion.value == pytest.approx(length**2 / (tau * peclet), rel=1e-12)
+    assert velocity.stderr == pytest.approx(relative_v * velocity.value, rel=1e-6)
+    assert dispersion.stderr == pytest.approx(relative_d * dispersion.value, rel=1e-6)
+    low, high = dispersion.ci95
+    assert low < dispersion.value < high and velocity.unit == "m/s"
+    assert physical_quantities(result)["velocity_m_per_s"].value is None  # no length, no v
