@@ -14,7 +14,8 @@ time of sampling lines and detectors, and ``b`` a baseline. :func:`measured` wra
 treats them like any other parameter.
 
 * **A is always estimated, jointly with the other parameters**, as a positive parameter
-  (fitted in ``ln A``), started at its closed-form least-squares value for the start curve.
+  (fitted in ``ln A``, a coordinate without scale), started at the area of the samples above
+  the start baseline (the plateau of an F-curve): a start only, never a normalisation.
   A enters linearly, so it could be eliminated at every step (variable projection, Golub and
   Pereyra 1973); keeping it a parameter instead lets one compiled solver, the joint
   Gauss–Newton covariance over A, b, t_d and the model parameters, profiles and batched fits
