@@ -58,19 +58,30 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
+from axialmix.analytic._complex import log_expm1
+
 DEFAULT_NODES = 32
 OFFSET_EXPONENT = 2.3
 TRUNCATION_EXPONENT = 40.0
-SADDLE_ITERATIONS = 40
+SADDLE_ITERATIONS = 60
+_SADDLE_TOLERANCE = 1e-3
+# Taylor coefficients at 0 are taken on a circle of this fraction of the distance to the focus.
+_TAYLOR_RADIUS = 0.3
+_THRESHOLD_MARGIN = 1.05
 # The saddle is searched for in s - focus between these multiples of the rate scale 1/mean.
 _BRACKET = 1e-30, 1e30
-# Points on each circle of the Laurent/Taylor split, and terms kept of each series: on the
-# circles the series are used at ratios of at most 1/2, so 64 terms reach 5e-20.
-_CIRCLE_POINTS = 128
-_SERIES_TERMS = 64
+# Points on each circle of the Laurent/Taylor split, and terms kept of each series: the series
+# are used at ratios of at most 2/3, so 96 terms reach 1e-17.
+_CIRCLE_POINTS = 192
+_SERIES_TERMS = 96
+# Radii of the two circles relative to rho = sqrt(β) k_d: on |s + k_d| = r rho the mobile variable
+# s' keeps |Re s' - (β - 1) k_d| <= |r - 1/r| sqrt(β) k_d (0.83 sqrt(β) k_d here).
+_CIRCLE_RATIO = 1.5
 # The split is used when the rest of the singularities are farther than this many rho from -k_d
 # and the cluster itself is within rho / this.
-_SEPARATION = 6.0
+_SEPARATION = 3.0
+# Largest log |G| on the split's circles for which the split is used.
+_CIRCLE_SIZE = 12.0
 # Scaled distance (Gaussian widths) from the mobile parabola to the cluster below which G_N is
 # inverted on its own contour.
 _CLUSTER_CLEARANCE = 3.0
@@ -79,26 +90,37 @@ _CLUSTER_CLEARANCE = 3.0
 Function = Callable[[jax.Array], jax.Array]
 
 
-def _cumulant_slopes(log_transform: Function, s: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Return the first two derivatives of ``Re log H`` at real ``s`` (elementwise)."""
+def _cumulant_slopes(log_transform: Function, s: jax.Array, reach: jax.Array):
+    """Return the first two derivatives of ``Re log H`` at real ``s`` (elementwise).
 
-    def cumulant(real_s):
-        return jnp.real(log_transform(real_s.astype(complex)))
-
-    def slope(real_s):
-        return jax.jvp(cumulant, (real_s,), (jnp.ones_like(real_s),))[1]
-
-    return jax.jvp(slope, (s,), (jnp.ones_like(s),))
+    H is real and analytic near the real axis right of its focus, so with ``K = log H`` and a
+    step ``r`` up the imaginary axis, ``Im K(s + i r) / r`` and ``2 Re[K(s) - K(s + i r)] / r²``
+    are K' and K'' up to ``O(r²)``; one Richardson step with ``2 r`` makes that ``O(r⁴)``. The
+    step is a tenth of ``reach`` (the distance to the focus), inside the disc where K is
+    analytic, which gives the 1e-4 relative accuracy the contour geometry needs. This costs
+    three evaluations of H in one vectorised call instead of nested differentiation, which
+    would multiply the size of the compiled program.
+    """
+    step = 0.1 * reach
+    points = s[..., None] + jnp.array([0.0, 1.0, 2.0]) * 1j * step[..., None]
+    values = log_transform(points)
+    base, near, far = values[..., 0], values[..., 1], values[..., 2]
+    first_near = jnp.imag(near - base) / step
+    first_far = jnp.imag(far - base) / (2.0 * step)
+    second_near = 2.0 * jnp.real(base - near) / step**2
+    second_far = 2.0 * jnp.real(base - far) / (2.0 * step) ** 2
+    return (4.0 * first_near - first_far) / 3.0, (4.0 * second_near - second_far) / 3.0
 
 
 def _saddle(log_transform: Function, focus, rate, theta):
     """Return ``s* - focus`` and ``Phi''(s*)`` for the saddle of ``s theta + log H(s)``.
 
-    ``theta`` is a positive array, ``focus`` a scalar or an array like it, ``rate`` a scalar.
-    Newton's method on ``log(mean(s)) = log(theta)`` in ``x = log(s - focus)`` (nearly linear
-    in x: slope -1 near a pole, -1/2 on the dispersion branch), keeping a bracket and bisecting
+    ``theta`` is a positive array, ``focus`` an array like it, ``rate`` a scalar. Newton's
+    method on ``log(mean(s)) = log(theta)`` in ``x = log(s - focus)`` (nearly linear in x:
+    slope -1 near a pole, -1/2 on the dispersion branch), keeping a bracket and bisecting
     whenever a step would leave it, so that plateaus of the tilted mean (slow exchange) cannot
-    derail it. Points too close to the focus to be resolved count as left of the saddle.
+    derail it; it stops when every step is below 1e-3 in x. Points too close to the focus to
+    be resolved count as left of the saddle.
     """
     nearest = _BRACKET[0] * rate + 1e-13 * jnp.abs(focus)
     lower = jnp.broadcast_to(jnp.log(nearest), theta.shape)
@@ -106,10 +128,10 @@ def _saddle(log_transform: Function, focus, rate, theta):
     start = jnp.clip(-jnp.log(theta), lower, upper)
     log_theta = jnp.log(theta)
 
-    def iterate(_, state):
-        x, low, high = state
+    def iterate(state):
+        count, x, low, high, _, _ = state
         distance = jnp.exp(x)
-        first, second = _cumulant_slopes(log_transform, focus + distance)
+        first, second = _cumulant_slopes(log_transform, focus + distance, distance)
         valid = (-first > 0) & jnp.isfinite(first) & jnp.isfinite(second)
         mean = jnp.where(valid, -first, 1.0)
         residual = jnp.where(valid, jnp.log(mean) - log_theta, jnp.inf)
@@ -118,18 +140,27 @@ def _saddle(log_transform: Function, focus, rate, theta):
         slope = -second * distance / mean
         newton = x - residual / jnp.where(slope < 0, slope, -1.0)
         usable = valid & (slope < 0) & (newton > low) & (newton < high) & jnp.isfinite(newton)
-        return jnp.where(usable, newton, 0.5 * (low + high)), low, high
+        following = jnp.where(usable, newton, 0.5 * (low + high))
+        return count + 1, following, low, high, jnp.max(jnp.abs(following - x)), second
 
-    x, _, _ = jax.lax.fori_loop(0, SADDLE_ITERATIONS, iterate, (start, lower, upper))
-    distance = jnp.exp(x)
-    _, second = _cumulant_slopes(log_transform, focus + distance)
-    return distance, jnp.maximum(second, jnp.finfo(float).tiny)
+    def unfinished(state):
+        count, _, _, _, change, _ = state
+        return (count < SADDLE_ITERATIONS) & (change > _SADDLE_TOLERANCE)
+
+    initial = (0, start, lower, upper, jnp.inf, jnp.ones_like(theta))
+    _, x, _, _, _, second = jax.lax.while_loop(unfinished, iterate, initial)
+    # The curvature of the last iterate, which is within 1e-3 in x of the returned point.
+    return jnp.exp(x), second
 
 
 class _Parabola:
     """A saddle-point parabola: focus, ``p = s* - focus``, line ``a`` (all per time)."""
 
     def __init__(self, focus, distance, curvature, theta):
+        # A curvature lost to rounding (far tails where the transform is nearly flat) falls
+        # back to that of a simple pole at the focus.
+        usable = jnp.isfinite(curvature) & (curvature > jnp.finfo(float).tiny)
+        curvature = jnp.where(usable, curvature, 1.0 / distance**2)
         self.focus = focus
         self.distance = distance
         self.saddle = focus + distance
@@ -187,18 +218,6 @@ def _parabola(log_fixed: Function, focus, rate, theta) -> _Parabola:
     return _Parabola(focus, distance, curvature, theta)
 
 
-def _log_expm1(ell: jax.Array) -> jax.Array:
-    """Return ``log(e^ell - 1)`` for complex ell without overflow (any branch of the log)."""
-    large = jnp.real(ell) > 0
-    safe_large = jnp.where(large, ell, 1.0)
-    safe_small = jnp.where(large, -1.0, ell)
-    return jnp.where(
-        large,
-        safe_large + jnp.log(-jnp.expm1(-safe_large)),
-        jnp.log(jnp.expm1(safe_small)),
-    )
-
-
 def _log_remainder(ell: jax.Array, s: jax.Array, slope, power: int) -> jax.Array:
     """Return ``log[(G - 1)/s]`` (power 1) or ``log[(G - 1 - slope s)/s²]`` (power 2).
 
@@ -207,7 +226,7 @@ def _log_remainder(ell: jax.Array, s: jax.Array, slope, power: int) -> jax.Array
     non-negative functions.
     """
     if power == 1:
-        return _log_expm1(ell) - jnp.log(s)
+        return log_expm1(ell) - jnp.log(s)
     large = jnp.real(ell) > 0
     safe_large = jnp.where(large, ell, 1.0)
     safe_small = jnp.where(large, -1.0, ell)
@@ -223,49 +242,47 @@ def _sum(weights, values):
     return jnp.sum(jnp.real(weights * values), axis=-1)
 
 
-def _derivatives_at_zero(log_fixed: Function, order: int) -> list[jax.Array]:
-    """Return ``d^j log H / ds^j`` at ``s = 0`` for ``j = 0..order`` (real)."""
+def _late_form_switch(log_fixed: Function, singularity, power: int):
+    """Return the log of H(0), its slope, the mean, the time after which the late form of
+    ``H/s**power`` is used, and whether H is sharp enough to need it (H need not be normalised).
 
-    def real_log(x):
-        return jnp.real(log_fixed(x.astype(complex)))
-
-    values = []
-    function = real_log
-    for _ in range(order + 1):
-        values.append(function(jnp.zeros(())))
-        function = (lambda f: lambda x: jax.jvp(f, (x,), (jnp.ones_like(x),))[1])(function)
-    return values
-
-
-def _late_threshold(log_fixed: Function, power: int):
-    """Return the mean and the time after which the late form of G/s**power is used.
-
-    The late form's saddle is left of 0 once t exceeds the tilted mean at 0 of ``1 - F``,
-    ``E[T²] / (2 E[T])`` (power 1), or of its integral, ``E[T³] / (3 E[T²])`` (power 2).
+    The moments come from the Taylor coefficients at 0, by the trapezoidal rule for the Cauchy
+    integral on ``|s| = 0.3 |sigma|`` (16 points, aliasing ``0.3^13``). The late form's saddle
+    is left of 0 once t exceeds the tilted mean at 0 of ``1 - F``, ``E[T²] / (2 E[T])``
+    (power 1), or of its integral, ``E[T³] / (3 E[T²])`` (power 2); the threshold has a 5 %
+    margin. On the narrow parabola of the early form, ``e^{s t} G(s)`` meets values of G far
+    left of 0 (``G ~ e^{Pe/2}`` near ``-Pe/4`` for the ADM); ``log G(sigma/2) > 8`` marks
+    curves sharp enough (nearly a delay) for that to matter; smooth ones keep the early form.
+    One vectorised evaluation of H serves both.
     """
-    _, slope, second, third = _derivatives_at_zero(log_fixed, 3)
-    mean, variance, skew = -slope, second, -third
+    points = 16
+    radius = _TAYLOR_RADIUS * jnp.abs(singularity)
+    circle = radius * jnp.exp(2j * jnp.pi * jnp.arange(points) / points)
+    values = log_fixed(jnp.concatenate([circle, jnp.reshape(0.5 * singularity, (1,))]))
+    coefficients = jnp.real(jnp.fft.fft(values[:points]) / points)
+    log_at_zero = coefficients[0]
+    slope = coefficients[1] / radius
+    variance = 2.0 * coefficients[2] / radius**2
+    skew = -6.0 * coefficients[3] / radius**3
+    mean = -slope
     moment2 = variance + mean**2
     moment3 = skew + 3.0 * mean * variance + mean**3
     tilted = moment2 / (2.0 * mean) if power == 1 else moment3 / (3.0 * moment2)
-    return mean, jnp.maximum(mean, tilted)
+    threshold = _THRESHOLD_MARGIN * jnp.maximum(mean, tilted)
+    sharp = jnp.real(values[points]) > 8.0
+    return log_at_zero, slope, mean, threshold, sharp
 
 
-def _is_sharp(log_fixed: Function, singularity) -> jax.Array:
-    """Return whether G grows enough left of 0 for the early form to lose digits late.
-
-    On the narrow parabola of the early form, ``e^{s t} G(s)`` meets values of G far left of 0
-    (``G ~ e^{Pe/2}`` near ``-Pe/4`` for the ADM); ``log G(sigma/2) > 8`` marks curves that
-    are sharp enough (nearly a delay) for this to matter. Smooth curves keep the early form,
-    whose parabola has no removed pole near it.
-    """
-    return jnp.real(log_fixed(jnp.asarray(0.5 * singularity, complex))) > 8.0
+def _per_point(flag: jax.Array, like: jax.Array) -> jax.Array:
+    """Return a per-time flag shaped to broadcast against ``like`` (extra trailing axes)."""
+    return flag.reshape(flag.shape + (1,) * (like.ndim - flag.ndim))
 
 
 def invert_single(
     log_transfer: Function,
     log_fixed: Function,
     singularity,
+    mean,
     theta,
     power: int,
     nodes: int,
@@ -273,31 +290,32 @@ def invert_single(
     """Return the inverse transform of ``G / s**power`` at positive times ``theta``.
 
     One saddle-point parabola per time, with the step and ramp treatment described above.
-    ``log_transfer`` is ``log G`` (live parameters), ``log_fixed`` the same with its
-    parameters held fixed (contour geometry), ``singularity`` the rightmost singularity of G
-    (fixed).
+    ``log_transfer`` is ``log G`` and ``mean`` its mean (live parameters), ``log_fixed`` the
+    same function with its parameters held fixed and ``singularity`` its rightmost
+    singularity (both place the contour).
     """
-    mean, threshold = _late_threshold(log_fixed, max(power, 1))
-    rate = 1.0 / mean
     if power == 0:
-        parabola = _parabola(log_fixed, singularity, rate, theta)
+        parabola = _parabola(log_fixed, singularity, 1.0 / jax.lax.stop_gradient(mean), theta)
         s, weights = parabola.nodes(nodes)
         return _sum(weights, jnp.exp(s * theta[..., None] + log_transfer(s)))
-    late = (theta >= threshold) & _is_sharp(log_fixed, singularity)
+    _, _, fixed_mean, threshold, sharp = _late_form_switch(log_fixed, singularity, power)
+    late = (theta >= threshold) & sharp
 
     def geometry(s):
         ell = log_fixed(s)
         early_form = ell - power * jnp.log(s)
-        return jnp.where(late, _log_remainder(ell, s, -mean, power), early_form)
+        late_form = _log_remainder(ell, s, -fixed_mean, power)
+        return jnp.where(_per_point(late, s), late_form, early_form)
 
-    parabola = _parabola(geometry, jnp.where(late, singularity, 0.0), rate, theta)
+    parabola = _parabola(geometry, jnp.where(late, singularity, 0.0), 1.0 / fixed_mean, theta)
     parabola.move_clear_of(late, 0.0, theta)
     s, weights = parabola.nodes(nodes)
     ell = log_transfer(s)
-    live_slope = _derivatives_at_zero(log_transfer, 1)[1]
-    late_form = _log_remainder(ell, s, live_slope, power)
-    exponent = s * theta[..., None] + jnp.where(late[..., None], late_form, ell - power * jnp.log(s))
-    residue = 1.0 if power == 1 else theta + live_slope
+    late_form = _log_remainder(ell, s, -mean, power)
+    exponent = s * theta[..., None] + jnp.where(
+        late[..., None], late_form, ell - power * jnp.log(s)
+    )
+    residue = 1.0 if power == 1 else theta - mean
     return _sum(weights, jnp.exp(exponent)) + jnp.where(late, residue, 0.0)
 
 
@@ -305,161 +323,174 @@ class _Cluster:
     """The exact split ``G = G_F + G_N`` about a dead-zone cluster at ``center``.
 
     ``G_N(s) = Σ_{n>=1} a_n (s - c)^{-n}`` (the principal part, analytic outside the cluster)
-    from G on the circle of radius ``rho/2``; ``G_F = G - G_N`` near the cluster from its Taylor
-    series on the circle of radius ``2 rho``. Each series is used only where its ratio is at
-    most 1/2, so :data:`_SERIES_TERMS` terms reach ``2^-64``.
+    comes from G on the circle of radius ``rho / r``, ``G_F = G - G_N`` near the cluster from
+    its Taylor series on the circle of radius ``r rho`` (r = :data:`_CIRCLE_RATIO`). Each
+    series is used only where its ratio is at most ``1/r``.
     """
 
-    def __init__(self, log_transfer: Function, center, radius):
+    def __init__(self, center, radius):
         self.center = center
         self.radius = radius
-        angles = 2.0 * jnp.pi * jnp.arange(_CIRCLE_POINTS) / _CIRCLE_POINTS
-        circle = jnp.exp(1j * angles)
-        inner = jnp.exp(log_transfer(center + 0.5 * radius * circle))
-        outer = jnp.exp(log_transfer(center + 2.0 * radius * circle))
-        # Coefficients of u^n, u = (rho/2) / (s - c), n = 1..K, and of v^n, v = (s - c)/(2 rho).
+        circle = jnp.exp(2j * jnp.pi * jnp.arange(_CIRCLE_POINTS) / _CIRCLE_POINTS)
+        self.points = jnp.concatenate(
+            [center + radius / _CIRCLE_RATIO * circle, center + radius * _CIRCLE_RATIO * circle]
+        )
+
+    def expand(self, log_values):
+        """Take ``log G`` at :attr:`points` and form the two series' coefficients.
+
+        Coefficients of ``u^n``, ``u = (rho/r) / (s - c)``, n = 1..K, and of ``v^n``,
+        ``v = (s - c) / (r rho)``, n = 0..K-1.
+        """
+        inner, outer = jnp.split(jnp.exp(log_values), 2)
         self.principal = jnp.fft.ifft(inner)[1 : _SERIES_TERMS + 1]
         self.regular = jnp.fft.fft(outer)[:_SERIES_TERMS] / _CIRCLE_POINTS
 
-    def scaled_parts(self, s, exponent_without_g, ell):
-        """Return ``e^X G_N(s)`` and ``e^X G_F(s)`` with ``X = exponent_without_g``, ``G = e^ell``."""
+    def _series(self, s):
+        """Return whether s is outside, the principal part there, the regular part inside, and
+        their derivatives in s (for the Taylor polynomial at 0)."""
         offset = s - self.center
         outside = jnp.abs(offset) >= self.radius
-        u = jnp.where(outside, 0.5 * self.radius / jnp.where(outside, offset, 1.0), 0.0)
-        v = jnp.where(outside, 0.0, offset / (2.0 * self.radius))
+        safe_offset = jnp.where(outside, offset, 1.0)
+        u = jnp.where(outside, self.radius / _CIRCLE_RATIO / safe_offset, 0.0)
+        v = jnp.where(outside, 0.0, offset / (_CIRCLE_RATIO * self.radius))
+        powers = jnp.arange(1, _SERIES_TERMS + 1)
         principal = u * jnp.polyval(self.principal[::-1], u)
+        principal_slope = -jnp.polyval((powers * self.principal)[::-1], u) * u / safe_offset
         regular = jnp.polyval(self.regular[::-1], v)
+        regular_slope = jnp.polyval((powers[:-1] * self.regular[1:])[::-1], v) / (
+            _CIRCLE_RATIO * self.radius
+        )
+        return outside, principal, principal_slope, regular, regular_slope
+
+    def scaled_parts(self, s, exponent_without_g, ell):
+        """Return ``e^X G_N(s)`` and ``e^X G_F(s)``, ``X = exponent_without_g``, ``G = e^ell``."""
+        outside, principal, _, regular, _ = self._series(s)
         scale = jnp.exp(exponent_without_g)
         full = jnp.exp(exponent_without_g + ell)
         near = jnp.where(outside, scale * principal, full - scale * regular)
         far = jnp.where(outside, full - scale * principal, scale * regular)
         return near, far
 
+    def far_at_zero(self, mean):
+        """Return ``G_F(0)`` and ``G_F'(0)``, given ``G(0) = 1`` and ``G'(0) = -mean``."""
+        outside, principal, principal_slope, regular, regular_slope = self._series(
+            jnp.zeros((), complex)
+        )
+        value = jnp.where(outside, 1.0 - principal, regular)
+        slope = jnp.where(outside, -mean - principal_slope, regular_slope)
+        return jnp.real(value), jnp.real(slope)
+
 
 def invert_with_dead_zone(
     log_transfer: Function,
-    log_fixed: Function,
-    far_fixed: Function,
+    surrogate_fixed,
     near_fixed: Function,
     singularity,
     far_singularity,
     near_singularity,
     center,
     radius,
+    mean,
     theta,
     power: int,
     nodes: int,
 ):
     """Return the inverse transform of ``G / s**power`` for a unit with a dead-zone cluster.
 
-    ``far_fixed`` and ``near_fixed`` are the positive surrogates that place the two contours,
-    ``far_singularity`` and ``near_singularity`` their foci, ``center`` (``-k_d``) and
-    ``radius`` (``sqrt(β) k_d``) the cluster; all but ``log_transfer`` are held fixed. When the
-    cluster is not well separated from the rest (fast exchange, or no dead zone) the single
-    contour of :func:`invert_single` is used.
+    ``surrogate_fixed(s, far)`` is ``log G`` with its parameters held fixed, or where ``far``
+    holds the positive surrogate without the cluster (focus ``far_singularity``);
+    ``near_fixed`` is the positive surrogate of the cluster (focus ``near_singularity``);
+    ``center`` (``-k_d``) and ``radius`` (``sqrt(β) k_d``) locate the cluster. All but
+    ``log_transfer`` and ``mean`` are held fixed. When the cluster is not well separated from
+    the rest (fast exchange, or no dead zone), or G is large on the split's circles, G is
+    inverted whole on the contour of :func:`invert_single` (the same program, with the
+    cluster's contour masked out).
     """
+    safe_radius = jnp.where(radius > 0, radius, 1.0)
+    cluster = _Cluster(center, safe_radius)
+    # The split costs digits in proportion to G on its circles (s' near (β-1) k_d ± 0.83
+    # sqrt(β) k_d, where G ~ e^{|s'| tau}): beyond e^12 the single contour is better.
+    circle_size = jnp.max(jnp.real(surrogate_fixed(cluster.points, False)))
     separated = (
         (radius > 0)
-        & (far_singularity < center - _SEPARATION * radius)
-        & (near_singularity - center < radius / _SEPARATION)
+        & (far_singularity < center - _SEPARATION * safe_radius)
+        & (near_singularity - center < safe_radius / _SEPARATION)
+        & (circle_size < _CIRCLE_SIZE)
     )
-
-    def single(_):
-        return invert_single(log_transfer, log_fixed, singularity, theta, power, nodes)
-
-    def split(_):
-        safe_radius = jnp.where(separated, radius, 1.0)
-        return _invert_split(
-            log_transfer,
-            log_fixed,
-            far_fixed,
-            near_fixed,
-            far_singularity,
-            near_singularity,
-            center,
-            safe_radius,
-            theta,
-            power,
-            nodes,
-        )
-
-    return jax.lax.cond(separated, split, single, None)
-
-
-def _invert_split(
-    log_transfer,
-    log_fixed,
-    far_fixed,
-    near_fixed,
-    far_singularity,
-    near_singularity,
-    center,
-    radius,
-    theta,
-    power,
-    nodes,
-):
-    cluster = _Cluster(log_transfer, center, radius)
-    far_log0, far_slope = _derivatives_at_zero(far_fixed, 1)
-    far_mean, threshold = _late_threshold(far_fixed, max(power, 1))
+    focus = jnp.where(separated, far_singularity, singularity)
     column = theta[..., None]
     near_rate = 1.0 / jnp.abs(center)
-    if power == 0:
-        far = _parabola(far_fixed, far_singularity, 1.0 / far_mean, theta)
-        enclosed = (far.vertex() > near_singularity) & (
-            far.clearance(near_singularity) >= _CLUSTER_CLEARANCE
+    fixed_mean = jax.lax.stop_gradient(mean)
+
+    def split_here(parabola):
+        """Where the mobile parabola does not pass well right of the cluster."""
+        passes_right = (parabola.vertex() > near_singularity) & (
+            parabola.clearance(near_singularity) >= _CLUSTER_CLEARANCE
         )
-        far.move_clear_of(~enclosed, center, theta)
-        s, weights = far.nodes(nodes)
-        ell = log_transfer(s)
-        _, far_part = cluster.scaled_parts(s, s * column, ell)
-        whole = jnp.exp(s * column + ell)
-        far_value = _sum(weights, jnp.where(enclosed[..., None], whole, far_part))
-        near = _parabola(near_fixed, near_singularity, near_rate, theta)
-        s, weights = near.nodes(nodes)
-        near_part, _ = cluster.scaled_parts(s, s * column, log_transfer(s))
-        return far_value + jnp.where(enclosed, 0.0, _sum(weights, near_part))
+        return separated & ~passes_right
 
-    late = (theta >= threshold) & _is_sharp(far_fixed, far_singularity)
+    def evaluate(*node_sets):
+        """log G (live) at the circles and at every node set, in one vectorised call."""
+        flat = [nodes_.reshape(-1) for nodes_ in node_sets]
+        values = log_transfer(jnp.concatenate([cluster.points, *flat]))
+        cluster.expand(values[: cluster.points.size])
+        out, start = [], cluster.points.size
+        for nodes_ in node_sets:
+            out.append(values[start : start + nodes_.size].reshape(nodes_.shape))
+            start += nodes_.size
+        return out
 
-    def geometry(s):
-        early_form = log_fixed(s) - power * jnp.log(s)
-        late_form = _log_remainder(far_fixed(s) - far_log0, s, far_slope, power)
-        return jnp.where(late, late_form, early_form)
+    if power == 0:
+        far = _parabola(lambda x: surrogate_fixed(x, separated), focus, 1.0 / fixed_mean, theta)
+        split = split_here(far)
+        far.move_clear_of(split, center, theta)
+        near = _parabola(near_fixed, jnp.where(separated, near_singularity, 0.0), near_rate, theta)
+        far_s, far_weights = far.nodes(nodes)
+        near_s, near_weights = near.nodes(nodes)
+        far_ell, near_ell = evaluate(far_s, near_s)
+        _, far_part = cluster.scaled_parts(far_s, far_s * column, far_ell)
+        whole = jnp.exp(far_s * column + far_ell)
+        far_value = _sum(far_weights, jnp.where(split[..., None], far_part, whole))
+        near_part, _ = cluster.scaled_parts(near_s, near_s * column, near_ell)
+        return far_value + jnp.where(split, _sum(near_weights, near_part), 0.0)
 
-    far = _parabola(geometry, jnp.where(late, far_singularity, 0.0), 1.0 / far_mean, theta)
+    # Steps and ramps: before the mobile mean, G/s**power on one contour with its focus at 0
+    # (the cluster is left of it); after it, the removed-pole form, split or not.
+    mobile_log0, mobile_slope, mobile_mean, threshold, sharp = _late_form_switch(
+        lambda x: surrogate_fixed(x, separated), focus, power
+    )
+    late = (theta >= threshold) & sharp
+
+    def geometry(x):
+        late_here = _per_point(late, x)
+        ell = surrogate_fixed(x, late_here & separated)
+        late_form = _log_remainder(ell - mobile_log0, x, mobile_slope, power)
+        return jnp.where(late_here, late_form, ell - power * jnp.log(x))
+
+    far = _parabola(geometry, jnp.where(late, focus, 0.0), 1.0 / mobile_mean, theta)
     far.move_clear_of(late, 0.0, theta)
-    enclosed = (far.vertex() > near_singularity) & (
-        far.clearance(near_singularity) >= _CLUSTER_CLEARANCE
-    )
-    far.move_clear_of(late & ~enclosed, center, theta)
-    s, weights = far.nodes(nodes)
-    ell = log_transfer(s)
-    log_s = jnp.log(s)
-    early_value = jnp.exp(s * column + ell - power * log_s)
-    live_slope = _derivatives_at_zero(log_transfer, 1)[1]
-    whole_late = jnp.exp(s * column + _log_remainder(ell, s, live_slope, power))
-
-    def far_transfer(x):
-        zero = jnp.zeros_like(x)
-        return cluster.scaled_parts(x, zero, log_transfer(x))[1]
-
-    zero = jnp.zeros((), complex)
-    far_at_zero, far_slope_at_zero = jax.jvp(far_transfer, (zero,), (jnp.ones((), complex),))
-    _, far_part = cluster.scaled_parts(s, s * column, ell)
-    polynomial = far_at_zero + (far_slope_at_zero * s if power == 2 else 0.0)
-    split_late = (far_part - jnp.exp(s * column) * polynomial) / s**power
-    integrand = jnp.where(
-        late[..., None], jnp.where(enclosed[..., None], whole_late, split_late), early_value
-    )
-    value = _sum(weights, integrand)
-    whole_residue = 1.0 if power == 1 else theta + live_slope
-    split_residue = jnp.real(far_at_zero if power == 1 else far_at_zero * theta + far_slope_at_zero)
-    residue = jnp.where(enclosed, whole_residue, split_residue)
+    split = late & split_here(far)
+    far.move_clear_of(split, center, theta)
     near = _parabola(
         lambda x: near_fixed(x) - power * jnp.log(x), jnp.zeros_like(theta), near_rate, theta
     )
-    s, weights = near.nodes(nodes)
-    near_part, _ = cluster.scaled_parts(s, s * column, log_transfer(s))
-    near_value = _sum(weights, near_part / s**power)
-    return value + jnp.where(late, residue + jnp.where(enclosed, 0.0, near_value), 0.0)
+    far_s, far_weights = far.nodes(nodes)
+    near_s, near_weights = near.nodes(nodes)
+    far_ell, near_ell = evaluate(far_s, near_s)
+    early_value = jnp.exp(far_s * column + far_ell - power * jnp.log(far_s))
+    whole_late = jnp.exp(far_s * column + _log_remainder(far_ell, far_s, -mean, power))
+    far_at_zero, far_slope_at_zero = cluster.far_at_zero(mean)
+    _, far_part = cluster.scaled_parts(far_s, far_s * column, far_ell)
+    polynomial = far_at_zero + (far_slope_at_zero * far_s if power == 2 else 0.0)
+    split_late = (far_part - jnp.exp(far_s * column) * polynomial) / far_s**power
+    integrand = jnp.where(
+        late[..., None], jnp.where(split[..., None], split_late, whole_late), early_value
+    )
+    value = _sum(far_weights, integrand)
+    whole_residue = 1.0 if power == 1 else theta - mean
+    split_residue = far_at_zero if power == 1 else far_at_zero * theta + far_slope_at_zero
+    residue = jnp.where(split, split_residue, whole_residue)
+    near_part, _ = cluster.scaled_parts(near_s, near_s * column, near_ell)
+    near_value = _sum(near_weights, near_part / near_s**power)
+    return value + jnp.where(late, residue + jnp.where(split, near_value, 0.0), 0.0)

@@ -8,17 +8,97 @@ exact step and ramp responses (:func:`inlet_response`).
 
 from __future__ import annotations
 
+import warnings
 from functools import partial
 
 import jax
 import jax.numpy as jnp
 from jax.typing import ArrayLike
 
-from axialmix._validation import require_finite, require_increasing_times
+from axialmix._validation import concrete_value, require_finite, require_increasing_times
 from axialmix.analytic._laplace import DEFAULT_NODES, invert_single, invert_with_dead_zone
-from axialmix.analytic.transfer import TransferFunction
+from axialmix.analytic.transfer import (
+    ClosedClosedADM,
+    ExchangeZone,
+    OpenOpenADM,
+    Series,
+    StirredTank,
+    TanksInSeries,
+    TransferFunction,
+)
 
-__all__ = ["exit_age", "inlet_response", "ramp_response", "step_response"]
+__all__ = ["AccuracyWarning", "exit_age", "inlet_response", "ramp_response", "step_response"]
+
+
+class AccuracyWarning(UserWarning):
+    """A unit was evaluated outside the parameter range in which its accuracy was verified."""
+
+
+# Ranges over which the inversion was checked against independent references (tests of
+# axialmix.analytic and the studies in tests/test_analytic_exchange.py): the Peclet number of
+# an ADM, the number of tanks, and for a dead zone its capacity ratio, its exchange number
+# k_d times the mobile mean, and the Peclet number or tank count of the mobile unit.
+_PECLET_RANGE = (1e-2, 1e4)
+_TANKS_RANGE = (0.5, 2000.0)
+_DEAD_ZONE_PECLET_RANGE = (0.1, 1000.0)
+_DEAD_ZONE_TANKS_RANGE = (1.0, 100.0)
+_CAPACITY_RANGE = (0.0, 5.0)
+_EXCHANGE_NUMBER_RANGE = (0.01, 100.0)
+# A stirred tank in series with other units: its time over their mean.
+_TANK_RATIO_RANGE = (1e-3, 10.0)
+
+
+def _outside(name: str, value, bounds, owner: str) -> list[str]:
+    array = concrete_value(value)
+    if array is None or array.size == 0:
+        return []
+    low, high = bounds
+    bad = (array < low) | (array > high)
+    if not bad.any():
+        return []
+    worst = array[bad].flat[0]
+    return [f"{owner} {name} {worst:g} is outside the verified range [{low:g}, {high:g}]"]
+
+
+def _range_problems(unit: TransferFunction, in_zone: bool = False) -> list[str]:
+    name = type(unit).__name__
+    if isinstance(unit, ClosedClosedADM | OpenOpenADM):
+        bounds = _DEAD_ZONE_PECLET_RANGE if in_zone else _PECLET_RANGE
+        return _outside("peclet", unit.peclet, bounds, name)
+    if isinstance(unit, TanksInSeries):
+        bounds = _DEAD_ZONE_TANKS_RANGE if in_zone else _TANKS_RANGE
+        return _outside("n_tanks", unit.n_tanks, bounds, name)
+    if isinstance(unit, ExchangeZone):
+        problems = _range_problems(unit.unit, in_zone=True)
+        problems += _outside("capacity_ratio", unit.capacity_ratio, _CAPACITY_RANGE, name)
+        mean = concrete_value(unit.unit.mean())
+        rate = concrete_value(unit.exchange_rate)
+        if mean is not None and rate is not None:
+            problems += _outside(
+                "exchange number k_d * mean", rate * mean, _EXCHANGE_NUMBER_RANGE, name
+            )
+        return problems
+    if isinstance(unit, Series):
+        problems = [p for part in unit.units for p in _range_problems(part, in_zone)]
+        for index, part in enumerate(unit.units):
+            others = [u for i, u in enumerate(unit.units) if i != index]
+            if isinstance(part, StirredTank) and others:
+                rest = concrete_value(sum(u.mean() for u in others))
+                tank = concrete_value(part.tau)
+                if rest is not None and tank is not None:
+                    problems += _outside(
+                        "tau over the mean of the other units", tank / rest, _TANK_RATIO_RANGE, name
+                    )
+        return problems
+    return []
+
+
+def _warn_if_unverified(unit: TransferFunction) -> None:
+    problems = _range_problems(unit)
+    if problems:
+        warnings.warn(
+            "; ".join(problems) + ": the result may be inaccurate", AccuracyWarning, stacklevel=3
+        )
 
 
 def _require_unit(unit: object) -> None:
@@ -44,6 +124,7 @@ def _inverse(unit: TransferFunction, t: jax.Array, power: int, nodes: int) -> ja
             unit.log_transfer,
             fixed.log_transfer,
             fixed.rightmost_singularity(),
+            unit.mean(),
             theta,
             power,
             nodes,
@@ -53,14 +134,14 @@ def _inverse(unit: TransferFunction, t: jax.Array, power: int, nodes: int) -> ja
         rate = jnp.asarray(zone.exchange_rate, float)
         value = invert_with_dead_zone(
             unit.log_transfer,
-            fixed.log_transfer,
-            fixed.far_log_transfer,
-            zone.near_log_transfer,
+            fixed.surrogate_log_transfer,
+            zone.near_log_transfer(),
             fixed.rightmost_singularity(),
             fixed.far_singularity(),
             zone.near_singularity(),
             -rate,
             jnp.sqrt(jnp.asarray(zone.capacity_ratio, float)) * rate,
+            unit.mean(),
             theta,
             power,
             nodes,
@@ -77,6 +158,7 @@ def _checked_times(unit: object, t: ArrayLike, nodes: int) -> jax.Array:
     _require_unit(unit)
     _require_nodes(nodes)
     require_increasing_times("t", t)
+    _warn_if_unverified(unit)
     return jnp.asarray(t, float)
 
 
@@ -190,6 +272,7 @@ def inlet_response(
     """
     _require_unit(unit)
     _require_nodes(nodes)
+    _warn_if_unverified(unit)
     if after not in _AFTER:
         raise ValueError(f"after must be 'zero' or 'hold', got {after!r}")
     if not isinstance(batch, int) or batch < 1:
@@ -207,7 +290,5 @@ def inlet_response(
             f"got {inlet_signal.shape}"
         )
     t = jnp.asarray(t, float)
-    values = _inlet_response(
-        unit, t.reshape(-1), inlet_times, inlet_signal, after, nodes, batch
-    )
+    values = _inlet_response(unit, t.reshape(-1), inlet_times, inlet_signal, after, nodes, batch)
     return values.reshape(t.shape)

@@ -22,7 +22,8 @@ eigenvalues ``s = -(4 λ_n² + Pe²) / (4 Pe tau) < -Pe / (4 tau)`` (MODELS.md �
 one has a branch point at ``s = -Pe / (4 tau)``; tanks have theirs at ``s = -n / tau``. The
 dead-zone substitution ``s' = s (1 + β k_d / (s + k_d))`` has
 
-    Im s' = Im s · (1 + β k_d² / |s + k_d|²),    Re s' = Re s + β k_d (|s|² + k_d Re s) / |s + k_d|²,
+    Im s' = Im s · (1 + β k_d² / |s + k_d|²),
+    Re s' = Re s + β k_d (|s|² + k_d Re s) / |s + k_d|²,
 
 so ``s'`` is real only where ``s`` is real (or ``s = -k_d``, an essential singularity), and
 ``s' >= 0`` for real ``s >= 0``: the singularities of ``G(s')`` are again real and negative.
@@ -44,7 +45,7 @@ import jax.numpy as jnp
 from jax.typing import ArrayLike
 
 from axialmix._validation import concrete_value, require_finite, require_positive
-from axialmix.analytic._contour import exprel
+from axialmix.analytic._complex import log_expm1
 from axialmix.analytic.closed import variance_ratio_closed
 
 __all__ = [
@@ -59,10 +60,9 @@ __all__ = [
 
 _LOG_FOUR = math.log(4.0)
 _LOG_TWO = math.log(2.0)
-_SMALL_X_SQUARED = 4.0
-# Taylor coefficients of sinh(x)/x and cosh(x) in x²; 15 terms reach 1e-21 for |x²| < 4.
-_SINH_RATIO_COEFFICIENTS = tuple(1.0 / math.factorial(2 * n + 1) for n in range(15))
-_COSH_COEFFICIENTS = tuple(1.0 / math.factorial(2 * n) for n in range(15))
+# Taylor coefficients of sinh(x)/x and cosh(x) in x²; 10 terms reach 1e-17 for |x²| < 1.
+_SINH_RATIO_COEFFICIENTS = tuple(1.0 / math.factorial(2 * n + 1) for n in range(10))
+_COSH_COEFFICIENTS = tuple(1.0 / math.factorial(2 * n) for n in range(10))
 
 
 def _sinh_ratio_and_cosh(x_squared: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -104,13 +104,18 @@ class TransferFunction(eqx.Module):
     def variance(self) -> jax.Array:
         """Return the residence-time variance ((time unit)²)."""
 
-    def far_log_transfer(self, s: ArrayLike) -> jax.Array:
-        """Return the log of a positive surrogate for G without its dead-zone cluster.
+    def surrogate_log_transfer(self, s: ArrayLike, far: ArrayLike) -> jax.Array:
+        """Return ``log G(s)``, or where `far` holds the log of a positive surrogate for G
+        without its dead-zone cluster (elementwise; only the contour geometry uses it).
 
-        Only the contour geometry uses it; it equals :meth:`log_transfer` for units without
-        a dead zone.
+        For units without a dead zone both are ``log G``.
         """
+        del far
         return self.log_transfer(s)
+
+    def far_log_transfer(self, s: ArrayLike) -> jax.Array:
+        """Return the log of the positive surrogate for G without its dead-zone cluster."""
+        return self.surrogate_log_transfer(s, True)
 
     def far_singularity(self) -> jax.Array:
         """Return the rightmost singularity of G outside its dead-zone cluster (1/time unit)."""
@@ -175,19 +180,17 @@ class ClosedClosedADM(TransferFunction):
         z = jnp.asarray(s, complex) * _real(self.tau)
         # G is even in q, an entire function of x² = (q Pe / 2)² = Pe²/4 + Pe z. Near q = 0 the
         # q-form differentiates badly (dq/ds is infinite there although G is smooth), so for
-        # |x| < 2 G = 2 e^{Pe/2} / [(1 + q²)(Pe/2) sinh(x)/x + 2 cosh(x)] is summed in x².
+        # |x| < 1 G = 2 e^{Pe/2} / [(1 + q²)(Pe/2) sinh(x)/x + 2 cosh(x)] is summed in x².
+        # Elsewhere |q Pe| >= 2 and the overflow-safe q-form needs no expm1.
         x_squared = 0.25 * peclet**2 + peclet * z
-        small = jnp.abs(x_squared) < _SMALL_X_SQUARED
+        small = jnp.abs(x_squared) < 1.0
         q = jnp.sqrt(1.0 + 4.0 * jnp.where(small, 1.0, z) / peclet)
-        denominator = 4.0 + peclet * (1.0 - q) ** 2 * exprel(-q * peclet)
-        large_form = _LOG_FOUR + 0.5 * peclet * (1.0 - q) - jnp.log(denominator)
-        x2 = jnp.where(small, x_squared, 0.0)
-        sinh_ratio, cosh = _sinh_ratio_and_cosh(x2)
-        q_squared = 1.0 + 4.0 * z / peclet
-        small_form = (
-            _LOG_TWO + 0.5 * peclet - jnp.log((1.0 + q_squared) * 0.5 * peclet * sinh_ratio + 2.0 * cosh)
-        )
-        return jnp.where(small, small_form, large_form)
+        exponent = q * peclet
+        large = 4.0 + peclet * (1.0 - q) ** 2 * (1.0 - jnp.exp(-exponent)) / exponent
+        sinh_ratio, cosh = _sinh_ratio_and_cosh(jnp.where(small, x_squared, 0.0))
+        small_denominator = (2.0 + 4.0 * z / peclet) * 0.5 * peclet * sinh_ratio + 2.0 * cosh
+        offset = jnp.where(small, _LOG_TWO + 0.5 * peclet, _LOG_FOUR + 0.5 * peclet * (1.0 - q))
+        return offset - jnp.log(jnp.where(small, small_denominator, large))
 
     def rightmost_singularity(self) -> jax.Array:
         peclet = _real(self.peclet)
@@ -342,35 +345,47 @@ class ExchangeZone(TransferFunction):
     def log_transfer(self, s: ArrayLike) -> jax.Array:
         return self.unit.log_transfer(self.substituted(s))
 
-    def far_log_transfer(self, s: ArrayLike) -> jax.Array:
-        # Away from s = -k_d, s' is close to s + β k_d: the mobile curve damped by e^{-β k_d t}.
+    def surrogate_log_transfer(self, s: ArrayLike, far: ArrayLike) -> jax.Array:
+        # Away from s = -k_d, s' is close to s + β k_d: the far surrogate is the mobile curve
+        # damped by e^{-β k_d t}. One evaluation of the unit at the selected argument.
+        s = jnp.asarray(s, complex)
         beta_rate = _real(self.capacity_ratio) * _real(self.exchange_rate)
-        return self.unit.log_transfer(jnp.asarray(s, complex) + beta_rate)
+        return self.unit.log_transfer(jnp.where(far, s + beta_rate, self.substituted(s)))
 
     def far_singularity(self) -> jax.Array:
         beta_rate = _real(self.capacity_ratio) * _real(self.exchange_rate)
         return self.unit.rightmost_singularity() - beta_rate
 
-    def near_log_transfer(self, s: ArrayLike) -> jax.Array:
-        """Return the log of a positive surrogate for G near its dead-zone cluster at ``-k_d``.
+    def near_log_transfer(self):
+        """Return ``s -> log`` of a positive surrogate for G near its dead-zone cluster.
 
         With ``w = s + k_d`` and ``z_0 = (β - 1) k_d``, ``s' = z_0 + w - β k_d² / w``; dropping
         ``w`` gives ``G_unit(z_0 - β k_d² / w) - G_unit(z_0)``, the transform of
         ``e^{-k_d t} Σ_n (β k_d²)^n M_n t^{n-1} / (n! (n-1)!)`` with positive ``M_n``. Only the
         contour geometry uses it.
+
+        **Returns:**
+
+        A function of complex ``s`` (1/time unit), elementwise.
         """
         rate = _real(self.exchange_rate)
         beta = _real(self.capacity_ratio)
         start = jnp.asarray((beta - 1.0) * rate, complex)
         at_start = self.unit.log_transfer(start)
-        shifted = start - beta * rate**2 / (jnp.asarray(s, complex) + rate)
-        return at_start + jnp.log(jnp.expm1(self.unit.log_transfer(shifted) - at_start))
+
+        def near(s):
+            shifted = start - beta * rate**2 / (jnp.asarray(s, complex) + rate)
+            return at_start + log_expm1(self.unit.log_transfer(shifted) - at_start)
+
+        return near
 
     def near_singularity(self) -> jax.Array:
         """Return the rightmost singularity of G and of its near surrogate (1/time unit)."""
         rate = _real(self.exchange_rate)
         beta = _real(self.capacity_ratio)
-        surrogate = -rate + beta * rate**2 / ((beta - 1.0) * rate - self.unit.rightmost_singularity())
+        surrogate = -rate + beta * rate**2 / (
+            (beta - 1.0) * rate - self.unit.rightmost_singularity()
+        )
         return jnp.maximum(surrogate, self.rightmost_singularity())
 
     def rightmost_singularity(self) -> jax.Array:
@@ -417,8 +432,7 @@ class Series(TransferFunction):
         for unit in self.units:
             if not isinstance(unit, TransferFunction):
                 raise ValueError(
-                    f"every unit of a Series must be a TransferFunction, got "
-                    f"{type(unit).__name__}"
+                    f"every unit of a Series must be a TransferFunction, got {type(unit).__name__}"
                 )
         if len(self.exchange_zones()) > 1:
             raise ValueError("a Series may hold at most one ExchangeZone")
@@ -427,9 +441,9 @@ class Series(TransferFunction):
         s = jnp.asarray(s, complex)
         return sum(unit.log_transfer(s) for unit in self.units)
 
-    def far_log_transfer(self, s: ArrayLike) -> jax.Array:
+    def surrogate_log_transfer(self, s: ArrayLike, far: ArrayLike) -> jax.Array:
         s = jnp.asarray(s, complex)
-        return sum(unit.far_log_transfer(s) for unit in self.units)
+        return sum(unit.surrogate_log_transfer(s, far) for unit in self.units)
 
     def far_singularity(self) -> jax.Array:
         return functools.reduce(jnp.maximum, (u.far_singularity() for u in self.units))
@@ -445,4 +459,3 @@ class Series(TransferFunction):
 
     def variance(self) -> jax.Array:
         return sum(unit.variance() for unit in self.units)
-
