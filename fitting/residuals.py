@@ -27,10 +27,11 @@ sum of squares, is significant at :data:`LACK_OF_FIT_LEVEL`. Fit residuals are n
 independent noise even when the model is right: ``p`` fitted parameters remove ``p`` smooth
 components, which makes neighbouring residuals slightly anti-correlated and both tests
 conservative. Measured false-alarm rates (``tests/test_lack_of_fit_study.py``: fits of noisy
-exact closed–closed ADM curves, tau 40 s, Pe log-uniform in 2–50, 200 curves per setting):
-with 2 % additive noise and unweighted fits 1.5, 1.0, 1.0 and 1.5 % at 15, 30, 60 and 200
-points; with 3 % proportional noise and relative-error fits 0.5, 1.5, 2.5 and 3.0 % (1,000
-curves each at 60 and 200 points: 0.7 and 1.0 %).
+exact closed–closed ADM curves, tau 40 s, Pe log-uniform in 2–50, 200 curves per setting, at
+15, 30, 60 and 200 points): E with 2 % additive noise, unweighted, 1.5, 0.0, 1.0 and 1.5 %;
+E with 3 % proportional noise, relative-error weights, 0.5, 0.5, 1.0 and 1.0 % (1,000 curves
+each at 60 and 200 points: 0.7 and 1.0 %); raw concentrations with 1 % additive and 2 %
+proportional noise, measurement model and combined error model, 0.0, 0.5, 1.0 and 2.0 %.
 """
 
 from __future__ import annotations
