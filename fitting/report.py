@@ -498,8 +498,8 @@ def summary_table(records: Sequence[Mapping[str, Any]]) -> str:
 
 
 def comparison_table(comparison: ModelComparison) -> str:
-    """The table of a model comparison: parameters, SSE, AICc, BIC and lack of fit per model,
-    followed by the recommendation.
+    """The table of a model comparison: fitted parameters with their units, SSE (``Σ w r²``),
+    AICc, BIC and lack of fit per model, followed by the recommendation.
 
     **Arguments:**
 
@@ -507,15 +507,20 @@ def comparison_table(comparison: ModelComparison) -> str:
 
     **Returns:** the table and the recommendation as text.
     """
-    header = ["model", "parameters (value +/- std. error)", "SSE", "K", "AICc", "dAICc",
-              "BIC", "lack of fit", "converged"]
+    header = ["model", "fitted parameters (value +/- std. error)", "SSE", "K", "AICc",
+              "dAICc", "BIC", "lack of fit", "converged"]
     rows = []
     for i, result in enumerate(comparison.results):
         cells = []
+        units = parameter_units(result)
         for name in result.values:
+            setting = result.init_params[name]
+            if not setting.vary and setting.expr is None:
+                continue  # fixed: in each fit's own record and table
             error = _finite(result.stderr.get(name))
+            unit = "" if units.get(name, "") in ("", "1") else f" {units[name]}"
             cells.append(f"{name} {_number(result.values[name], 4)}"
-                         + ("" if error is None else f" +/- {error:.2g}"))
+                         + ("" if error is None else f" +/- {error:.2g}") + unit)
         rows.append([
             comparison.names[i], ", ".join(cells), _number(result.sse, 4),
             str(comparison.n_parameters[i]), _number(comparison.aicc[i], 6),
