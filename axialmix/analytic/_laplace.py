@@ -186,6 +186,7 @@ class _Parabola:
         widths and ``T / t`` left of ``point``, but never more than ``e^5`` costlier than the
         saddle nor so close to the focus that ``a < sqrt(1/2)``.
         """
+        theta = jax.lax.stop_gradient(theta)
         wanted = jnp.minimum(
             self.vertex(),
             jnp.minimum(point - 3.0 * self.width, point - TRUNCATION_EXPONENT / theta),
@@ -213,6 +214,8 @@ class _Parabola:
 
 
 def _parabola(log_fixed: Function, focus, rate, theta) -> _Parabola:
+    """Return the saddle-point parabola at times ``theta`` (held fixed: geometry only)."""
+    theta = jax.lax.stop_gradient(theta)
     focus = jnp.broadcast_to(focus, theta.shape)
     distance, curvature = _saddle(log_fixed, focus, rate, theta)
     return _Parabola(focus, distance, curvature, theta)
@@ -236,6 +239,16 @@ def _log_remainder(ell: jax.Array, s: jax.Array, slope, power: int) -> jax.Array
         jnp.log(jnp.expm1(safe_small) - slope * s),
     )
     return numerator - 2.0 * jnp.log(s)
+
+
+def _exp(exponent: jax.Array) -> jax.Array:
+    """Return ``e^exponent`` with the real part capped at 700.
+
+    Every form of the integrand is evaluated at every node and the right one selected per
+    time; capping keeps the others finite, so that their zero cotangents do not turn into NaN
+    (0 × inf) in reverse-mode derivatives. The selected form never comes near the cap.
+    """
+    return jnp.exp(jnp.minimum(jnp.real(exponent), 700.0) + 1j * jnp.imag(exponent))
 
 
 def _sum(weights, values):
@@ -297,7 +310,7 @@ def invert_single(
     if power == 0:
         parabola = _parabola(log_fixed, singularity, 1.0 / jax.lax.stop_gradient(mean), theta)
         s, weights = parabola.nodes(nodes)
-        return _sum(weights, jnp.exp(s * theta[..., None] + log_transfer(s)))
+        return _sum(weights, _exp(s * theta[..., None] + log_transfer(s)))
     _, _, fixed_mean, threshold, sharp = _late_form_switch(log_fixed, singularity, power)
     late = (theta >= threshold) & sharp
 
@@ -316,7 +329,7 @@ def invert_single(
         late[..., None], late_form, ell - power * jnp.log(s)
     )
     residue = 1.0 if power == 1 else theta - mean
-    return _sum(weights, jnp.exp(exponent)) + jnp.where(late, residue, 0.0)
+    return _sum(weights, _exp(exponent)) + jnp.where(late, residue, 0.0)
 
 
 class _Cluster:
@@ -342,7 +355,7 @@ class _Cluster:
         Coefficients of ``u^n``, ``u = (rho/r) / (s - c)``, n = 1..K, and of ``v^n``,
         ``v = (s - c) / (r rho)``, n = 0..K-1.
         """
-        inner, outer = jnp.split(jnp.exp(log_values), 2)
+        inner, outer = jnp.split(_exp(log_values), 2)
         self.principal = jnp.fft.ifft(inner)[1 : _SERIES_TERMS + 1]
         self.regular = jnp.fft.fft(outer)[:_SERIES_TERMS] / _CIRCLE_POINTS
 
@@ -366,8 +379,8 @@ class _Cluster:
     def scaled_parts(self, s, exponent_without_g, ell):
         """Return ``e^X G_N(s)`` and ``e^X G_F(s)``, ``X = exponent_without_g``, ``G = e^ell``."""
         outside, principal, _, regular, _ = self._series(s)
-        scale = jnp.exp(exponent_without_g)
-        full = jnp.exp(exponent_without_g + ell)
+        scale = _exp(exponent_without_g)
+        full = _exp(exponent_without_g + ell)
         near = jnp.where(outside, scale * principal, full - scale * regular)
         far = jnp.where(outside, full - scale * principal, scale * regular)
         return near, far
@@ -450,7 +463,7 @@ def invert_with_dead_zone(
         near_s, near_weights = near.nodes(nodes)
         far_ell, near_ell = evaluate(far_s, near_s)
         _, far_part = cluster.scaled_parts(far_s, far_s * column, far_ell)
-        whole = jnp.exp(far_s * column + far_ell)
+        whole = _exp(far_s * column + far_ell)
         far_value = _sum(far_weights, jnp.where(split[..., None], far_part, whole))
         near_part, _ = cluster.scaled_parts(near_s, near_s * column, near_ell)
         return far_value + jnp.where(split, _sum(near_weights, near_part), 0.0)
@@ -478,12 +491,12 @@ def invert_with_dead_zone(
     far_s, far_weights = far.nodes(nodes)
     near_s, near_weights = near.nodes(nodes)
     far_ell, near_ell = evaluate(far_s, near_s)
-    early_value = jnp.exp(far_s * column + far_ell - power * jnp.log(far_s))
-    whole_late = jnp.exp(far_s * column + _log_remainder(far_ell, far_s, -mean, power))
+    early_value = _exp(far_s * column + far_ell - power * jnp.log(far_s))
+    whole_late = _exp(far_s * column + _log_remainder(far_ell, far_s, -mean, power))
     far_at_zero, far_slope_at_zero = cluster.far_at_zero(mean)
     _, far_part = cluster.scaled_parts(far_s, far_s * column, far_ell)
     polynomial = far_at_zero + (far_slope_at_zero * far_s if power == 2 else 0.0)
-    split_late = (far_part - jnp.exp(far_s * column) * polynomial) / far_s**power
+    split_late = (far_part - _exp(far_s * column) * polynomial) / far_s**power
     integrand = jnp.where(
         late[..., None], jnp.where(split[..., None], split_late, whole_late), early_value
     )
