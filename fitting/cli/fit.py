@@ -68,7 +68,8 @@ several curves also give ``DIR/summary.json`` and ``DIR/summary.csv`` with one r
 and model. ``--fix`` and ``--tie`` apply to the models that have the parameters they name.
 
 With ``--grid`` the source's exhaustive grid search runs on the same loss: rates (parameters
-named ``k_*``) over ``[0 : 0.125 : 2.5]`` (MODELS.md section 3), any other free parameter over
+named ``k_*``, except the dead-zone exchange rate ``k_d``) over ``[0 : 0.125 : 2.5]``
+(MODELS.md section 3), any other free parameter over
 21 log-spaced values from a quarter to four times its fitted value; a free rate not on that
 grid (``k_out``) is held at its fitted value, so the grid is the source's three-dimensional one.
 """
@@ -97,6 +98,9 @@ SOURCE_GRID_STEP, SOURCE_GRID_MAX = 0.125, 2.5
 #: Free parameters held at their fitted value in the grid search (the source did not search
 #: the outflow rate, and had no measurement model).
 GRID_HELD = ("k_out", "amplitude", "dead_time", "baseline")
+#: Rates that are not compartment fluxes: searched like other parameters, around the fit (the
+#: dead-zone exchange rate of the exchange models).
+NOT_SOURCE_RATES = ("k_d",)
 #: Short names accepted by ``--free`` for the measurement parameters.
 FREE_ALIASES = {"t_d": "dead_time", "b": "baseline"}
 #: Starts per compiled batch when ``--starts`` is large: progress is shown between batches.
@@ -468,7 +472,7 @@ def _grid_for(model, result):
             tied[name] = setting.expr
         elif not setting.vary or name in GRID_HELD:
             fixed[name] = value
-        elif name.startswith("k_"):
+        elif name.startswith("k_") and name not in NOT_SOURCE_RATES:
             grids[name] = source_flux_grid(SOURCE_GRID_STEP, SOURCE_GRID_MAX)
         else:
             grids[name] = value * np.logspace(math.log10(0.25), math.log10(4.0), 21)
