@@ -46,8 +46,8 @@ import numpy as np
 from axialmix._csv import Column, DataError, Table, read_table
 
 __all__ = ["NEGATIVE_FRACTION", "TIME_UNIT_SECONDS", "Curve", "DataError", "DataWarning",
-           "as_curve", "input_files", "read_inlet_csv", "read_many", "read_rtd_csv",
-           "seconds_per"]
+           "as_curve", "column_time_unit", "curve_columns", "input_files", "read_inlet_csv",
+           "read_many", "read_rtd_csv", "seconds_per", "validated_curve"]
 
 #: Fraction of the peak that the last sample may keep before the curve counts as "never
 #: returned to baseline": a tail above 5 % of the peak leaves a visible part of the area
@@ -167,7 +167,19 @@ def _pick_column(table: Table, wanted: str | int | None, candidates: set[str],
     return matches[0] if matches else None
 
 
-def _columns(table: Table, time_column, value_column) -> tuple[Column, Column]:
+def curve_columns(table: Table, time_column: str | int | None = None,
+                  value_column: str | int | None = None) -> tuple[Column, Column]:
+    """The time and value columns of a table, as :func:`read_rtd_csv` chooses them.
+
+    **Arguments:**
+
+    - `table`: the open table (:func:`axialmix._csv.read_table`).
+    - `time_column`, `value_column`: a column name or 0-based index, or ``None`` to recognise
+      it from the header spellings (or take the other of two columns).
+
+    **Returns:** ``(time, value)`` columns; a :class:`DataError` naming the file and the
+    columns when they cannot be told.
+    """
     labels = ", ".join(c.label for c in table.columns)
     if len(table.columns) < 2:
         raise table.error(f"missing column: found {len(table.columns)} column, need time and "
@@ -252,13 +264,8 @@ def read_rtd_csv(
             isinstance(baseline, int | float) and not isinstance(baseline, bool))):
         raise ValueError(f"baseline must be None, 'first', 'min' or a number, got {baseline!r}")
     table = read_table(path, decimal=decimal, suffix_units=tuple(_TIME_UNITS))
-    time_col, value_col = _columns(table, time_column, value_column)
-    time_unit = "s"
-    if time_col.unit is not None:
-        if time_col.unit.lower() not in _TIME_UNITS:
-            raise table.error(f"unknown time unit {time_col.unit!r} in {time_col.label!r} "
-                              f"(known: s, ms, min, h)")
-        time_unit = _TIME_UNITS[time_col.unit.lower()]
+    time_col, value_col = curve_columns(table, time_column, value_column)
+    time_unit = column_time_unit(table, time_col)
     try:
         rows, data = table.numbers([time_col.index, value_col.index])
     except DataError as error:
@@ -268,9 +275,64 @@ def read_rtd_csv(
                 and error.problem.startswith("non-numeric cell") and "," in error.problem):
             raise
         table = read_table(path, decimal=",", suffix_units=tuple(_TIME_UNITS))
-        time_col, value_col = _columns(table, time_column, value_column)
+        time_col, value_col = curve_columns(table, time_column, value_column)
         rows, data = table.numbers([time_col.index, value_col.index])
-    time, value = data[:, 0], data[:, 1]
+    return validated_curve(path, rows, data[:, 0], data[:, 1], time_unit=time_unit,
+                           value_unit=value_col.unit, name=name if name is not None else
+                           path.stem, baseline=baseline, normalise=normalise,
+                           min_points=min_points, on_truncated=on_truncated)
+
+
+def column_time_unit(table: Table, column: Column) -> str:
+    """The time unit a time column's header gives (``"s"`` when it gives none).
+
+    **Arguments:** `table`, the open table; `column`, its time column.
+
+    **Returns:** ``"s"``, ``"ms"``, ``"min"`` or ``"h"``; a :class:`DataError` at the header
+    for a unit that is not a time unit.
+    """
+    if column.unit is None:
+        return "s"
+    if column.unit.lower() not in _TIME_UNITS:
+        raise table.error(f"unknown time unit {column.unit!r} in {column.label!r} "
+                          f"(known: s, ms, min, h)")
+    return _TIME_UNITS[column.unit.lower()]
+
+
+def validated_curve(
+    path: str | Path,
+    rows: np.ndarray,
+    time: np.ndarray,
+    value: np.ndarray,
+    *,
+    time_unit: str = "s",
+    value_unit: str | None = None,
+    name: str | None = None,
+    baseline: None | str | float = None,
+    normalise: bool = True,
+    min_points: int = 5,
+    on_truncated: str = "warn",
+) -> Curve:
+    """Check the samples of one curve read from a file and make them a :class:`Curve`.
+
+    The checks and options of :func:`read_rtd_csv`, for samples read by any reader (one
+    curve of a long study table, say), with errors naming `path` and the row.
+
+    **Arguments:**
+
+    - `path`: the file the samples come from.
+    - `rows`: the line number in the file of each sample, shape ``(n,)``.
+    - `time`, `value`: the samples, shape ``(n,)``; time in `time_unit`.
+    - `time_unit`, `value_unit`: their units (`value_unit` ``None`` when unknown).
+    - `name`: the curve's label (default: the file name without extension).
+    - `baseline`, `normalise`, `min_points`, `on_truncated`: as in :func:`read_rtd_csv`.
+
+    **Returns:** the :class:`Curve`; :class:`DataError` naming file and row for bad samples.
+    """
+    path = Path(path)
+    time = np.asarray(time, dtype=float)
+    value = np.asarray(value, dtype=float)
+    data = np.stack([time, value], axis=1)
     problems = []
     bad = _first(time < 0)
     if bad is not None:
@@ -343,7 +405,7 @@ def read_rtd_csv(
         value=value,
         time_unit=time_unit,
         source=str(path),
-        value_unit=None if normalise else value_col.unit,
+        value_unit=None if normalise else value_unit,
         normalised=bool(normalise),
     )
 
