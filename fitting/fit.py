@@ -426,7 +426,22 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
         curves = [as_curve(c) for c in curves]
         plain = dataclasses.replace(settings, combined_errors=None)
         first = _fit_batch(model, curves, params, None, plain)
-        return _refit_with_combined_errors(model, curves, first, settings)
+        # The error model is estimated from residuals, which measure the noise only where
+        # the model describes the curve: a systematic misfit would be read as noise growing
+        # with the model, and the weights it gives pull the fit away from the peak, further
+        # each pass (a collapse, e.g. a Gaussian pulse fitted by the ADM: amplitude 28 where
+        # the curve's area is 250). Such curves keep their unweighted fit, saying why.
+        described = [i for i, r in enumerate(first) if not r.lack_of_fit.systematic]
+        results = list(first)
+        if described:
+            refitted = _refit_with_combined_errors(
+                model, [curves[i] for i in described], [first[i] for i in described], settings)
+            for i, r in zip(described, refitted, strict=True):
+                results[i] = r
+        for i, r in enumerate(first):
+            if r.lack_of_fit.systematic:
+                results[i] = _kept_unweighted(r, settings)
+        return results
     if settings.relative_errors is not None:
         if weights is not None:
             raise ValueError("relative_errors sets the weights itself; pass weights=None")
@@ -597,6 +612,15 @@ def _refit_with_combined_errors(model, curves: Sequence[Curve], first: Sequence[
         for r, f, e, w, c, (a, b) in zip(results, first, evaluations, wall, compile_time, used,
                                          strict=True)
     ]
+
+
+def _kept_unweighted(result: FitResult, settings: FitSettings) -> FitResult:
+    """The unweighted fit of a curve its model does not describe, under combined errors."""
+    note = ("the combined error model was not estimated: the unweighted fit's residuals are "
+            "systematic, so they measure the misfit, not the noise")
+    sigma = result.sigma if result.sigma is not None else math.nan
+    return dataclasses.replace(result, settings=settings,
+                               error_model=ErrorEstimate("absolute", float(sigma), 0.0, 1, note))
 
 
 def _with_estimated_weight_shape(result: FitResult) -> FitResult:
