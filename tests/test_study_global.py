@@ -1,0 +1,180 @@
+"""Global fits of studies: factor laws and shared parameters with one covariance.
+
+The curves are raw tracer signals ``A_i E(t; tau_i, Pe_i) + noise`` made with the exact
+closed–closed ADM (:func:`axialmix.analytic.exit_age_closed`), each on its own time grid
+and at its own noise level, with ``ln Pe_i = c0 + c1 speed_i + c2 flow_i`` (a known law)
+and ``tau_i`` per run.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+from axialmix.analytic import exit_age_closed
+from fitting.data import Curve
+from fitting.fit import fit_many
+from fitting.study import (
+    FactorLaw,
+    GlobalModel,
+    global_fit,
+    global_problem,
+    two_stage_law,
+)
+
+#: The true law: ln Pe = c0 + c1 speed (rpm) + c2 flow (kg/h); Pe from 11 to 45 over the
+#: small design, 8 to 137 in the source's blenders (MODELS.md section 1).
+TRUTH = {"peclet:intercept": 1.5, "peclet:speed": 0.005, "peclet:flow": 0.04}
+LAW = FactorLaw("peclet", ("speed", "flow"))
+SPEC = GlobalModel("adm", laws=(LAW,))
+
+
+#: The exact closed-closed ADM on a batch of grids, compiled once for every study.
+_EXACT = jax.jit(jax.vmap(exit_age_closed))
+#: Samples of every grid as evaluated (curves use their first samples).
+_GRID = 64
+
+
+def make_study(seed: int, speeds=(100.0, 200.0, 300.0), flows=(10.0, 20.0), replicates=1,
+               samples=(18, 30), noise=0.02):
+    """Raw curves of a speed x flow design from the true law; each with its own grid,
+    amplitude, tau (inversely proportional to the flow, 5 % run-to-run scatter) and noise
+    (`noise` times its peak, Gaussian)."""
+    rng = np.random.default_rng(seed)
+    runs = [(speed, flow) for speed in speeds for flow in flows for _ in range(replicates)]
+    speed = np.array([s for s, _ in runs])
+    flow = np.array([f for _, f in runs])
+    peclet = np.exp(TRUTH["peclet:intercept"] + TRUTH["peclet:speed"] * speed
+                    + TRUTH["peclet:flow"] * flow)
+    tau = 900.0 / flow * (1.0 + 0.05 * rng.standard_normal(len(runs)))
+    counts = rng.integers(*samples, size=len(runs))
+    grids = np.array([np.linspace(0.1 * t, 3.0 * t, _GRID) for t in tau])
+    # Each curve's own grid: `count` samples from 0.1 tau to 3 tau, then continued.
+    steps = (grids[:, -1] - grids[:, 0]) / (counts - 1)
+    grids = grids[:, :1] + steps[:, None] * np.arange(_GRID)
+    exact = np.asarray(_EXACT(grids, tau, peclet))
+    amplitude = rng.uniform(2.0, 5.0, len(runs)) * tau
+    curves = []
+    for i, count in enumerate(counts):
+        clean = amplitude[i] * exact[i, :count]
+        value = clean + noise * clean.max() * rng.standard_normal(count)
+        curves.append(Curve(f"run{i}", grids[i, :count], value))
+    return curves, {"speed": speed.tolist(), "flow": flow.tolist()}
+
+
+@pytest.fixture(scope="module")
+def study():
+    curves, factors = make_study(seed=1)
+    first = fit_many(SPEC.curve_model, curves)
+    return curves, factors, first, global_fit(SPEC, curves, factors, first=first)
+
+
+def test_global_fit_recovers_the_factor_law_within_its_intervals(study):
+    _, _, _, result = study
+    assert result.converged, result.message
+    estimate = result.law("peclet")
+    print("\n" + result.report())
+    assert estimate.covers(TRUTH) == (True, True, True)
+    # One covariance over all curves: N - p degrees of freedom, less the weight ratios.
+    assert result.dof == result.n_points - len(result.names) - (len(result.curve_names) - 1)
+    # Per-curve Peclet numbers follow the law; their intervals are the delta method on the
+    # coefficients' block of the one covariance, back-transformed.
+    picked = [result.names.index(n) for n in LAW.coefficient_names]
+    design = LAW.design(result.factors)
+    linear = design @ np.array(estimate.values)
+    np.testing.assert_allclose(result.per_curve["peclet"], np.exp(linear), rtol=1e-12)
+    block = result.covariance[np.ix_(picked, picked)]
+    half = estimate.ci95[0][1] - estimate.values[0]  # t(0.975, dof) times se of c0
+    quantile = half / estimate.stderr[0]
+    spread = quantile * np.sqrt(np.einsum("ij,jk,ik->i", design, block, design))
+    np.testing.assert_allclose(np.log(result.per_curve_ci95["peclet"]),
+                               np.column_stack([linear - spread, linear + spread]), rtol=1e-10)
+
+
+def test_one_by_one_fits_then_regression_give_wider_intervals(study):
+    _, factors, first, result = study
+    joint = result.law("peclet")
+    two_stage = two_stage_law(LAW, first, factors)
+    print("\n" + joint.report() + "\n" + two_stage.report())
+    assert two_stage.dof == len(first) - 3
+    for (low, high), (low2, high2) in zip(joint.ci95, two_stage.ci95, strict=True):
+        assert high - low < high2 - low2
+
+
+def test_joint_jacobian_matches_finite_differences(study):
+    curves, factors, first, result = study
+    problem = global_problem(SPEC, curves, factors, first=first)
+    assert problem.model is global_problem(SPEC, curves, factors, first=first).model
+    predict = jax.jit(problem.predict)
+    at = np.array([result.values[n] for n in problem.names])
+    jacobian = np.concatenate(result.jacobian)  # forward mode, what the solver used
+    used = problem.weights > 0
+    for j in range(len(at)):
+        # Central differences, step relative to the value (all of order 1e-3 to 1e2).
+        step = 1e-6 * max(abs(at[j]), 1e-3)
+        up, down = at.copy(), at.copy()
+        up[j] += step
+        down[j] -= step
+        numeric = (np.asarray(predict(up)) - np.asarray(predict(down)))[used] / (2 * step)
+        scale = np.max(np.abs(jacobian[:, j]))
+        np.testing.assert_allclose(jacobian[:, j], numeric, atol=1e-6 * scale)
+
+
+def test_gradient_of_the_joint_objective_matches_finite_differences(study):
+    curves, factors, first, _ = study
+    problem = global_problem(SPEC, curves, factors, first=first)
+    value_and_grad = jax.jit(jax.value_and_grad(problem.sse))
+    at = problem.start  # the first-stage starts: not the optimum, the gradient is not 0
+    _, gradient = value_and_grad(at)
+    gradient = np.asarray(gradient)
+    for j in (0, 1, 2, 3, len(at) - 1):  # the law's coefficients, a tau, an amplitude
+        step = 1e-6 * max(abs(at[j]), 1e-3)
+        up, down = at.copy(), at.copy()
+        up[j] += step
+        down[j] -= step
+        numeric = (float(value_and_grad(up)[0]) - float(value_and_grad(down)[0])) / (2 * step)
+        assert gradient[j] == pytest.approx(numeric, rel=1e-5, abs=1e-8 * np.abs(gradient).max())
+
+
+@pytest.mark.parametrize("make, words", [
+    (lambda: FactorLaw("peclet", ()), "has no terms"),
+    (lambda: FactorLaw("peclet", ("speed",), transform="sqrt"), "transform must be one of"),
+    (lambda: FactorLaw("peclet", ("speed", "speed")), "lists a name twice"),
+    (lambda: FactorLaw("peclet", ("speed:",)), "interaction names factors"),
+    (lambda: GlobalModel("nope", shared=("tau",)), "unknown model"),
+    (lambda: GlobalModel("adm"), "needs a factor law or a shared parameter"),
+    (lambda: GlobalModel("adm", laws=(FactorLaw("k_f", ("speed",)),)), "not a parameter"),
+    (lambda: GlobalModel("adm", laws=(LAW,), shared=("peclet",)), "both shared and given"),
+    (lambda: GlobalModel("adm", shared=("dead_time",)), "not a parameter of model"),
+    (lambda: GlobalModel("adm", laws=(LAW, LAW)), "same parameter"),
+    (lambda: GlobalModel("adm", shared=("tau",), free=("offset",)),
+     "not a measurement parameter"),
+    (lambda: GlobalModel("adm", shared=("tau",), inlet="ramp"), "inlet must be one of"),
+])
+def test_bad_specifications_are_refused_in_one_sentence(make, words):
+    with pytest.raises(ValueError, match=words):
+        make()
+
+
+@pytest.mark.parametrize("factors, words", [
+    ({"speed": [100.0] * 6}, "factor 'flow' is not among"),
+    ({"speed": [100.0] * 6, "flow": [10.0, 20.0] * 3}, "rank 2 < 3"),
+    ({"speed": [100.0] * 5, "flow": [10.0, 20.0] * 3}, "5 values for 6 curves"),
+    ({"speed": ["fast"] * 6, "flow": [10.0, 20.0] * 3}, "not numeric"),
+])
+def test_bad_factor_tables_are_refused_before_any_fit(factors, words):
+    time = np.linspace(1.0, 30.0, 20)
+    curves = [Curve(f"run{i}", time, time * np.exp(-time / (5.0 + i))) for i in range(6)]
+    with pytest.raises(ValueError, match=words):
+        global_problem(SPEC, curves, factors)
+
+
+def test_a_factor_law_names_its_coefficients_and_reads_interactions():
+    law = FactorLaw("tau", ["flow", "speed:flow"], transform="identity")
+    assert law.coefficient_names == ("tau:intercept", "tau:flow", "tau:speed:flow")
+    assert law.factors == ("flow", "speed")
+    design = law.design({"speed": [1.0, 2.0], "flow": [3.0, 4.0]})
+    np.testing.assert_array_equal(design, [[1.0, 3.0, 3.0], [1.0, 4.0, 8.0]])
+    assert law.describe() == "tau = c0 + c1 flow + c2 speed:flow"
+    assert GlobalModel("adm", laws=(law,)).per_curve == ("peclet", "amplitude")
