@@ -28,6 +28,7 @@ FITTING_LAYERS = (
     "fitting.gridsearch",
     "fitting.study",
     "fitting.report",
+    "fitting.study.batch",  # renders each curve through fitting.report
     "fitting.cli.anova",
     "fitting.cli.fit",
     "fitting.cli.simulate",

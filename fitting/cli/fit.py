@@ -7,6 +7,8 @@
                  [--inlet pulse|step|FILE] [--loss sse|mae] [--grid] [--starts N]
                  [--errors absolute|relative|combined] [--length METRES]
                  [--decimal auto|.|,] [--time-column C] [--value-column C] --out DIR
+                 [--curve-column C [--inlet-column C] [--factors A,B] | --design FILE]
+                 [--chunk N] [--workers N | --scheduler ADDRESS]
 
 Every input is read and validated, and every option checked, before anything is written:
 bad input prints one line ``axialmix fit: error: <file>:<row>: <problem>`` to stderr and
@@ -66,6 +68,20 @@ with a recommendation that says when the data cannot tell the models apart
 ``DIR/<name>.<model>.json`` and ``.png``, the comparison to ``DIR/<name>.comparison.json``;
 several curves also give ``DIR/summary.json`` and ``DIR/summary.csv`` with one row per curve
 and model. ``--fix`` and ``--tie`` apply to the models that have the parameters they name.
+
+Studies of many curves (:mod:`fitting.study.input`, :mod:`fitting.study.batch`): with
+``--curve-column C`` the input is one long table (curve id, time, concentration, an optional
+``--inlet-column``, and factor columns constant within a curve); with ``--design FILE`` the
+curve files get their factors from a design table. Either way (and with ``--chunk``,
+``--workers`` or ``--scheduler`` on plain curve files) each curve is fitted as a single file
+would be, in chunks of ``--chunk`` curves (default 64), and ``DIR/summary.csv`` and
+``DIR/summary.json`` get one row per curve: its factors, each parameter with standard error and
+95 % interval (units in the column names), v and D_z with ``--length``, the error model,
+convergence and the lack-of-fit verdict. No per-curve files or plots are written. Finished
+chunks are appended to ``DIR/summary.jsonl``; the same command run again after Ctrl-C or a
+kill fits only the curves not yet in it. ``--workers N`` fits on a local Dask cluster of N
+processes, ``--scheduler ADDRESS`` on a running one, with the same results. A study fits one
+model by least squares (no ``--grid``, no ``--loss mae``).
 
 With ``--grid`` the source's exhaustive grid search runs on the same loss: rates (parameters
 named ``k_*``, except the dead-zone exchange rate ``k_d``) over ``[0 : 0.125 : 2.5]``
@@ -170,6 +186,29 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--value-column", default=None, metavar="NAME|INDEX",
                         help="the concentration column by name or 0-based index (default: "
                         "recognised, or the second of two columns)")
+    study = parser.add_argument_group(
+        "studies of many curves", "one summary row per curve with its factors, fitted in "
+        "chunks, resumable; used with any of these options")
+    study.add_argument("--curve-column", default=None, metavar="NAME|INDEX",
+                       help="the input is one long table: this column holds the curve id, "
+                       "the other columns (besides time, value and --inlet-column) are factors "
+                       "constant within a curve")
+    study.add_argument("--inlet-column", default=None, metavar="NAME|INDEX",
+                       help="with --curve-column: a column with each curve's inlet signal at "
+                       "its sample times")
+    study.add_argument("--factors", default=None, metavar="A,B",
+                       help="with --curve-column: only these factor columns (default: all "
+                       "other columns)")
+    study.add_argument("--design", default=None, metavar="FILE",
+                       help="a design table mapping curve file names (first column, or a "
+                       "column named file, curve, run or name) to factor columns")
+    study.add_argument("--chunk", type=int, default=None, metavar="N",
+                       help="curves fitted and written together, one Dask task "
+                       "(default: 64)")
+    study.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="fit on a local Dask cluster of N processes")
+    study.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="fit on the Dask scheduler at ADDRESS (tcp://host:8786)")
     parser.add_argument("--out", required=True, metavar="DIR", help="folder for the results")
     parser.set_defaults(func=run)
     return parser
@@ -479,6 +518,159 @@ def _grid_for(model, result):
     return grids, fixed, tied
 
 
+def _is_study(args: argparse.Namespace) -> bool:
+    """Whether the options ask for a study (one summary of many curves, with factors)."""
+    return any(getattr(args, name) is not None for name in
+               ("curve_column", "design", "chunk", "workers", "scheduler"))
+
+
+def _read_study(args: argparse.Namespace, files: Sequence[Path]):
+    """The study of ``--curve-column`` (one long table) or of curve files (and ``--design``)."""
+    from fitting.data import DataError
+    from fitting.study.input import read_long_csv, study_from_files
+
+    for option in ("inlet_column", "factors"):
+        if getattr(args, option) is not None and args.curve_column is None:
+            raise InputError(f"--{option.replace('_', '-')} belongs to a long table: give "
+                             "--curve-column too")
+    try:
+        if args.curve_column is not None:
+            if args.design is not None:
+                raise InputError("--design maps curve files to factors; a long table "
+                                 "(--curve-column) carries its factors in its columns")
+            if len(files) != 1 or Path(args.inputs[0]).is_dir():
+                raise InputError(f"--curve-column: give one long table, not {len(files)} "
+                                 "files or a folder")
+            factors = None if args.factors is None else [
+                name.strip() for name in args.factors.split(",") if name.strip()]
+            return read_long_csv(files[0], _column(args.curve_column),
+                                 time_column=_column(args.time_column),
+                                 value_column=_column(args.value_column),
+                                 inlet_column=_column(args.inlet_column), factors=factors,
+                                 decimal=args.decimal)
+        return study_from_files(_read_curves(files, args), args.design, decimal=args.decimal)
+    except DataError as error:
+        raise InputError(error.compact()) from None
+
+
+def _run_study(args: argparse.Namespace, files: Sequence[Path], models, every_settings,
+               free: tuple[str, ...], out: Path) -> int:
+    """Check the study options and input, then fit the study (see the module docstring)."""
+    from fitting.measurement import measured
+    from fitting.study.batch import DEFAULT_CHUNK, StudyPlan, StudyRun, plan_model
+
+    if len(models) > 1:
+        raise InputError("--model: a study fits one model; compare models on single files")
+    if args.grid:
+        raise InputError("--grid runs on single files, not on a study")
+    if args.loss != "sse":
+        raise InputError("--loss mae runs on single files; a study fits least squares")
+    chunk = DEFAULT_CHUNK if args.chunk is None else args.chunk
+    if chunk < 1:
+        raise InputError(f"--chunk: must be at least 1 curve, got {chunk}")
+    if args.workers is not None and args.scheduler is not None:
+        raise InputError("--workers starts a local cluster, --scheduler uses a running one: "
+                         "give one of them")
+    if args.workers is not None and not 1 <= args.workers <= 1024:
+        raise InputError(f"--workers: must be 1 to 1024 processes, got {args.workers}")
+    study = _read_study(args, files)
+    per_curve = any(inlet is not None for inlet in study.inlets)
+    if per_curve and args.inlet != "pulse":
+        raise InputError("--inlet-column gives each curve its inlet; leave out --inlet")
+    inlet, samples = args.inlet, None
+    if args.inlet not in ("pulse", "step"):
+        given = _inlet(args.inlet, study.curves, args)
+        inlet, samples = "sampled", (tuple(given.times.tolist()), tuple(given.values.tolist()))
+    name = args.model.strip()
+    plan = StudyPlan(model=name if name in _registered() else str(Path(name)), free=free,
+                     inlet=inlet, inlet_samples=samples,
+                     parameters=tuple(every_settings[0].items()), errors=args.errors,
+                     starts=args.starts, length_m=args.length)
+    if every_settings[0]:
+        checked = measured(models[0].base, plan_model(plan, None).inlet, free)
+        _check_fixed_curves(checked, every_settings[0], study.curves,
+                            [study.source] * len(study))
+    try:
+        run = StudyRun(plan, study, out, chunk)
+    except ValueError as error:
+        raise InputError(str(error)) from None
+    return _StudyExecution(run, args, out).execute()
+
+
+def _registered() -> tuple[str, ...]:
+    from fitting.models import MODELS
+
+    return tuple(MODELS)
+
+
+class _StudyExecution:
+    """A study run in a worker thread, Ctrl-C in the main thread (as :class:`_Run`)."""
+
+    def __init__(self, run, args: argparse.Namespace, out: Path):
+        self.run, self.args, self.out = run, args, out
+        self.stop = threading.Event()
+        self.lock = _Lock(out)
+        self.failure: BaseException | None = None
+        self.status = OK
+
+    def execute(self) -> int:
+        in_main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, self._interrupt) if in_main else None
+        try:
+            try:
+                self.lock.acquire()
+            except InputError as error:
+                return error_line("fit", str(error))
+            worker = threading.Thread(target=self._work, name="axialmix-study", daemon=True)
+            worker.start()
+            while worker.is_alive():
+                worker.join(0.1)
+                if self.stop.is_set():
+                    self._leave()
+        finally:
+            self.lock.release()
+            if in_main:
+                signal.signal(signal.SIGINT, previous)
+        if self.failure is not None:
+            raise self.failure
+        return self.status
+
+    def _interrupt(self, signum, frame) -> None:
+        self.stop.set()
+
+    def _leave(self) -> None:
+        """After Ctrl-C: the summary of the finished curves (the journal holds them already),
+        then exit 130 at once; a later run on the same --out continues."""
+        run = self.run
+        try:
+            if run.done:
+                run.write_summary()
+        finally:
+            self.lock.release()
+            _exit_now(f"axialmix fit: interrupted after {len(run.done)} of {len(run.study)} "
+                      f"curves; run the same command again to continue ({self.out})")
+
+    def _work(self) -> None:
+        run = self.run
+        try:
+            if run.resumed:
+                print(f"axialmix fit: continuing {self.out}: {run.resumed} of {len(run.study)} "
+                      "curves were fitted before", file=sys.stderr, flush=True)
+            run.run(workers=self.args.workers, scheduler=self.args.scheduler,
+                    stop=self.stop.is_set)
+        except ValueError as error:
+            self.status = error_line("fit", f"{run.study.source}: {error}")
+            return
+        except BaseException as error:  # shown by the main thread
+            self.failure = error
+            return
+        rows = [row["record"] for row in run.ordered()]
+        converged = sum(bool(r["converged"]) for r in rows)
+        misfit = sum(bool((r.get("lack_of_fit") or {}).get("systematic")) for r in rows)
+        print(f"{len(rows)} curves: {converged} converged, {misfit} with systematic misfit; "
+              f"summary in {self.out / 'summary.csv'} and {self.out / 'summary.json'}")
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``axialmix fit`` with parsed arguments; returns the exit status.
 
@@ -522,6 +714,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--grid compares a fit with the source's grid search; use it with "
                              "one --model")
         every_settings = _settings_for_each(models, args.fix, args.tie)
+        if _is_study(args):
+            return _run_study(args, files, models, every_settings, free, out)
         curves = _read_curves(files, args)
         inlet = _inlet(args.inlet, curves, args)
         try:

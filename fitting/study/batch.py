@@ -1,0 +1,487 @@
+"""Fitting the curves of a study in chunks: shared compiled solvers, a resumable summary, Dask.
+
+Every curve is fitted exactly as ``axialmix fit`` fits one file (:func:`fitting.fit.fit` with
+the measurement model and the error model of a :class:`StudyPlan`) and rendered by
+:func:`fitting.report.fit_record`; this module computes no physics. What it adds is the
+study around the fits:
+
+* **One compiled solver for all curves.** The solver core compiles one single-start program
+  per model, parameter layout and settings, and pads every curve with zero-weight points to
+  16, 32, 64, ... samples (:func:`fitting.solve.padded_length`), so ragged time grids share a
+  program per length class (curves of 15 to 60 samples: three programs, compiled once per
+  process). A zero weight is an exact mask: the padded points add exactly zero to the loss,
+  gradient and Jacobian (tested bit for bit). A curve with its own measured inlet signal has
+  its own model, so its own program (compiled for that curve alone: slow for many curves).
+* **Chunks.** Curves are fitted in chunks (:data:`DEFAULT_CHUNK` curves); only a chunk's
+  results are held before they are written, so memory stays bounded whatever the study's
+  size.
+* **Resumable.** Each finished chunk is appended to the journal ``summary.jsonl`` in the
+  output folder (its first line describes the study and the settings; then one JSON line per
+  curve) by one ``write`` and ``fsync``, and ``summary.csv`` is rewritten atomically. A run
+  started again on the same folder, with the same study and settings, reads the journal and
+  fits only the curves not in it: after Ctrl-C or a kill no finished curve is lost or fitted
+  twice (a line torn by a kill during the write is dropped and its curve fitted again).
+  ``summary.json`` (every curve's full record) is written at the end, and after Ctrl-C.
+* **Dask.** With ``workers=N`` (a local cluster of N single-threaded processes) or a
+  scheduler address, chunks are tasks (:func:`fit_chunk`); each worker process compiles its
+  programs once and reuses them for every chunk it gets. A curve's fit does not depend on
+  the chunk it is in or the process it runs in, so the summary equals the one-process
+  summary (to round-off; only the wall times differ). Dask is imported only then.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import json
+import logging
+import math
+import os
+import sys
+import threading
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import equinox as eqx
+
+from axialmix._files import write_atomic, write_csv, write_json
+from axialmix._progress import progress_bar
+from fitting.data import Curve
+from fitting.fit import fit
+from fitting.losses import ERROR_KINDS
+from fitting.measurement import FREEABLE, INLET_KINDS, Inlet, measured
+from fitting.models import MODELS, Model, network_model
+from fitting.parameters import Parameter
+from fitting.report import fit_record
+from fitting.solve import MultiStart, enable_compilation_cache
+from fitting.study.input import Study, factor_value
+
+__all__ = ["DEFAULT_CHUNK", "JOURNAL_NAME", "StudyPlan", "StudyRun", "fit_chunk",
+           "plan_model", "study_table"]
+
+#: Curves per chunk (and per Dask task) unless told.
+DEFAULT_CHUNK = 64
+#: The journal of finished curves in an output folder.
+JOURNAL_NAME = "summary.jsonl"
+#: Chunks in flight per Dask worker (one running, one waiting).
+CHUNKS_PER_WORKER = 2
+
+
+class StudyPlan(eqx.Module):
+    """How every curve of a study is fitted: model, measurement, parameter settings, errors.
+
+    Plain values only (names, numbers, tuples), so that a plan travels to Dask workers and
+    each worker builds the same model once.
+
+    **Arguments:**
+
+    - `model`: a registered model name (``"adm"``, ...) or a network file (``.json``/``.toml``).
+    - `free`: measurement parameters fitted as well (``"dead_time"``, ``"baseline"``).
+    - `inlet`: ``"pulse"`` (default), ``"step"``, or ``"sampled"`` with `inlet_samples`;
+      curves with their own inlet signal (:attr:`fitting.study.input.Study.inlets`) use it.
+    - `inlet_samples`: ``(times, values)`` of a measured inlet signal (the curves' time unit).
+    - `parameters`: ``(name, Parameter)`` pairs: fixed, tied or bounded parameters.
+    - `errors`: ``"combined"`` (default), ``"relative"`` or ``"absolute"``.
+    - `starts`: number of starts, ``None`` for the model's default.
+    - `length_m`: blender length (m) for ``v`` and ``D_z``, or ``None``.
+    """
+
+    model: str
+    free: tuple[str, ...] = ()
+    inlet: str = "pulse"
+    inlet_samples: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    parameters: tuple[tuple[str, Parameter], ...] = ()
+    errors: str = "combined"
+    starts: int | None = None
+    length_m: float | None = None
+
+    def __check_init__(self):
+        if self.errors not in ERROR_KINDS:
+            raise ValueError(f"errors must be one of {', '.join(ERROR_KINDS)}, got "
+                             f"{self.errors!r}")
+        unknown = [name for name in self.free if name not in FREEABLE]
+        if unknown:
+            raise ValueError(f"free: {unknown[0]!r} is not a measurement parameter (choose "
+                             f"from {', '.join(FREEABLE)})")
+        if self.inlet not in INLET_KINDS:
+            raise ValueError(f"inlet must be one of {', '.join(INLET_KINDS)}, got "
+                             f"{self.inlet!r}")
+        if (self.inlet == "sampled") != (self.inlet_samples is not None):
+            raise ValueError("a sampled inlet needs its samples, and only a sampled inlet has "
+                             "them")
+        if self.starts is not None and self.starts < 1:
+            raise ValueError(f"starts must be at least 1, got {self.starts}")
+        if self.length_m is not None and not self.length_m > 0:
+            raise ValueError(f"the length must be a positive number of metres, got "
+                             f"{self.length_m}")
+
+    def describe(self) -> dict[str, Any]:
+        """The plan as plain JSON (the journal's record of how its curves were fitted)."""
+        return {
+            "model": self.model, "free": list(self.free), "inlet": self.inlet,
+            "inlet_samples": None if self.inlet_samples is None
+            else [list(self.inlet_samples[0]), list(self.inlet_samples[1])],
+            "parameters": {name: {"value": _plain(p.value), "vary": p.vary,
+                                  "min": _plain(p.min), "max": _plain(p.max), "expr": p.expr}
+                           for name, p in self.parameters},
+            "errors": self.errors, "starts": self.starts, "length_m": self.length_m,
+        }
+
+
+def _plain(number: float | None) -> float | str | None:
+    """A number for JSON: infinite bounds as text."""
+    return number if number is None or math.isfinite(number) else str(number)
+
+
+@functools.lru_cache(maxsize=8)
+def _base_model(name: str) -> Model:
+    """The model of a plan's name, built once per process (a network file is read once)."""
+    return MODELS[name] if name in MODELS else network_model(name)
+
+
+@functools.lru_cache(maxsize=8)
+def _study_inlet(kind: str, samples: tuple | None) -> Inlet:
+    if kind == "pulse":
+        return Inlet.pulse()
+    if kind == "step":
+        return Inlet.step()
+    return Inlet.sampled(samples[0], samples[1], "inlet")
+
+
+def plan_model(plan: StudyPlan, inlet: Curve | None = None) -> Model:
+    """The measured model a plan fits a curve with (built once per process and inlet).
+
+    **Arguments:** `plan`, the :class:`StudyPlan`; `inlet`, the curve's own inlet signal or
+    ``None`` for the plan's.
+
+    **Returns:** the :class:`~fitting.measurement.MeasuredModel`.
+    """
+    signal = Inlet.from_curve(inlet) if inlet is not None else _study_inlet(
+        plan.inlet, plan.inlet_samples)
+    return measured(_base_model(plan.model), signal, plan.free)
+
+
+_CACHE_ENABLED = threading.Event()
+
+
+def fit_chunk(plan: StudyPlan, curves: Sequence[Curve],
+              inlets: Sequence[Curve | None] | None = None) -> list[dict[str, Any]]:
+    """Fit a chunk of curves with a plan and render each fit as its JSON record.
+
+    This is the task a Dask worker runs; the one-process run calls it too, so both give the
+    same numbers.
+
+    **Arguments:**
+
+    - `plan`: the :class:`StudyPlan`.
+    - `curves`: the curves (raw values, their files' units).
+    - `inlets`: per curve its own inlet signal or ``None`` (then the plan's inlet).
+
+    **Returns:** one :func:`fitting.report.fit_record` per curve, in order; a one-line
+    ``ValueError`` naming the curve when one cannot be fitted.
+    """
+    if not _CACHE_ENABLED.is_set():
+        enable_compilation_cache()
+        _CACHE_ENABLED.set()
+    settings = dict(plan.parameters)
+    inlets = inlets if inlets is not None else [None] * len(curves)
+    records = []
+    for curve, inlet in zip(curves, inlets, strict=True):
+        try:
+            result = fit(plan_model(plan, inlet), curve, settings, loss="sse",
+                         errors=plan.errors, multistart=MultiStart(n_starts=plan.starts))
+        except ValueError as error:
+            raise ValueError(f"curve {curve.name!r}: {error}") from None
+        records.append(fit_record(result, None, source=curve.source, length_m=plan.length_m))
+    return records
+
+
+def _label(name: str, unit: str | None) -> str:
+    """A column name with its unit in brackets (``tau [min]``; none for dimensionless)."""
+    return name if unit in (None, "", "1") else f"{name} [{unit}]"
+
+
+def _extra_quantities(record: Mapping[str, Any]) -> list[str]:
+    """Physical quantities of a record that do not repeat one of its parameters (v, D_z for
+    the ADM; a network's equivalent tau, Pe, D_z)."""
+    values = [entry.get("value") for entry in record["parameters"].values()]
+    keys = []
+    for key, entry in (record.get("physical") or {}).items():
+        stem = key.removesuffix(f"_{record.get('time_unit', 's')}")
+        if entry.get("value") is None or stem in record["parameters"] or (
+                entry["value"] in values and stem == "mean_residence_time"):
+            continue
+        keys.append(key)
+    return keys
+
+
+def study_table(rows: Sequence[Mapping[str, Any]], factors: Sequence[str]
+                ) -> tuple[list[str], list[list[Any]]]:
+    """The summary table of a study: one row per curve, rendered from the curves' records.
+
+    **Arguments:**
+
+    - `rows`: per curve ``{"curve": id, "levels": [factor text...], "record": fit record}``.
+    - `factors`: the factor names.
+
+    **Returns:** ``(header, rows)``. Columns: ``curve``, the factors (as written), each
+    fitted parameter's value, standard error and 95 % interval (``tau [s]``,
+    ``tau_stderr [s]``, ``tau_ci95_low [s]``, ``tau_ci95_high [s]``: units in brackets,
+    none for dimensionless ones), the same for physical quantities that are not parameters
+    (``velocity_m_per_s``, ``dispersion_m2_per_s``: units in their names), then the error
+    model, convergence, the lack-of-fit verdict and its tests, loss, points, evaluations and
+    wall time.
+    """
+    if not rows:
+        return ["curve", *factors], []
+    first = rows[0]["record"]
+    names = [name for name, entry in first["parameters"].items()
+             if entry.get("vary", True) or entry.get("expr") is not None]
+    extra = _extra_quantities(first)
+    header = ["curve", *factors, "model", "n_points"]
+    for name in names:
+        unit = first["parameters"][name].get("unit")
+        header += [_label(f"{name}{part}", unit)
+                   for part in ("", "_stderr", "_ci95_low", "_ci95_high")]
+    for key in extra:
+        header += [key, f"{key}_stderr", f"{key}_ci95_low", f"{key}_ci95_high"]
+    header += ["errors", "converged", "message", "systematic_misfit", "runs_test_p",
+               "lag1_autocorrelation", "loss", "sse", "n_evaluations", "wall_time_s"]
+    table = []
+    for row in rows:
+        record = row["record"]
+        cells: list[Any] = [row["curve"], *row["levels"], record["model"], record["n_points"]]
+        for entries, keys in ((record["parameters"], names),
+                              (record.get("physical") or {}, extra)):
+            for key in keys:
+                entry = entries.get(key) or {}
+                low, high = entry.get("ci95") or (None, None)
+                cells += [entry.get("value"), entry.get("stderr"), low, high]
+        verdict = record.get("lack_of_fit") or {}
+        cells += [(record.get("error_model") or {}).get("kind"), record["converged"],
+                  record["message"], verdict.get("systematic"), verdict.get("runs_test_p"),
+                  verdict.get("lag1_autocorrelation"), record["loss"], record["sse"],
+                  record["n_evaluations"], round(record["wall_time"], 4)]
+        table.append(cells)
+    return header, table
+
+
+class StudyRun:
+    """One run of a study into an output folder: resumes its journal, fits the rest in
+    chunks (in this process or on Dask), keeps the summary files current.
+
+    **Arguments:**
+
+    - `plan`: the :class:`StudyPlan`.
+    - `study`: the :class:`~fitting.study.input.Study`.
+    - `folder`: the output folder (created if missing).
+    - `chunk`: curves per chunk (and per Dask task).
+
+    Opening a folder whose journal describes another study or other settings is a one-line
+    ``ValueError``. :attr:`lock` is held while results are appended and summaries written
+    (a caller handling Ctrl-C takes it before writing the summary itself).
+    """
+
+    def __init__(self, plan: StudyPlan, study: Study, folder: str | Path,
+                 chunk: int = DEFAULT_CHUNK):
+        if chunk < 1:
+            raise ValueError(f"chunk must be at least 1 curve, got {chunk}")
+        self.plan, self.study, self.chunk = plan, study, int(chunk)
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.journal = self.folder / JOURNAL_NAME
+        self.lock = threading.Lock()
+        self.header = {"study": study.source, "digest": study.digest(), "n_curves": len(study),
+                       "factors": list(study.factors), "plan": plan.describe()}
+        self.index = {name: i for i, name in enumerate(study.ids)}
+        #: Finished curves: ``{id: {"curve", "levels", "record"}}``, from the journal too.
+        self.done: dict[str, dict[str, Any]] = self._resume()
+        #: Curves the journal held when this run began.
+        self.resumed = len(self.done)
+
+    @property
+    def pending(self) -> list[int]:
+        """Indices (study order) of the curves not fitted yet."""
+        return [i for i, name in enumerate(self.study.ids) if name not in self.done]
+
+    def _resume(self) -> dict[str, dict[str, Any]]:
+        if not self.journal.exists():
+            line = json.dumps(self.header, allow_nan=False) + "\n"
+            write_atomic(self.journal, lambda stream: stream.write(line))
+            return {}
+        data = self.journal.read_bytes()
+        lines = data.split(b"\n")
+        kept = len(data) if data.endswith(b"\n") else len(data) - len(lines[-1])
+        try:
+            header = json.loads(lines[0])
+        except ValueError:
+            raise ValueError(f"{self.journal}: not a study journal; choose another --out "
+                             "folder or remove the file") from None
+        if header != json.loads(json.dumps(self.header)):
+            what = "data" if header.get("digest") != self.header["digest"] else "settings"
+            raise ValueError(f"{self.journal}: holds a study with other {what}; continue it "
+                             "with the same input and options, or choose another --out folder")
+        done: dict[str, dict[str, Any]] = {}
+        offset = len(lines[0]) + 1
+        for line in lines[1:-1]:
+            try:
+                row = json.loads(line)
+            except ValueError:  # torn by a kill during its write: fitted again
+                kept = offset
+                break
+            if row.get("curve") not in self.index:
+                raise ValueError(f"{self.journal}: curve {row.get('curve')!r} is not in the "
+                                 "study")
+            done.setdefault(row["curve"], row)
+            offset += len(line) + 1
+        if kept < len(data):
+            with open(self.journal, "r+b") as stream:
+                stream.truncate(kept)
+        return done
+
+    def _append(self, indices: Sequence[int], records: Sequence[Mapping[str, Any]]) -> None:
+        rows = [{"curve": self.study.ids[i], "levels": list(self.study.levels[i]),
+                 "record": record} for i, record in zip(indices, records, strict=True)]
+        text = "".join(json.dumps(row, allow_nan=False) + "\n" for row in rows).encode()
+        with self.lock:
+            handle = os.open(self.journal, os.O_WRONLY | os.O_APPEND)
+            try:
+                written = os.write(handle, text)
+                while written < len(text):  # a regular file takes it at once; be sure
+                    written += os.write(handle, text[written:])
+                os.fsync(handle)
+            finally:
+                os.close(handle)
+            for row in rows:
+                self.done[row["curve"]] = row
+            self._write_table()
+
+    def ordered(self) -> list[dict[str, Any]]:
+        """The finished curves' rows in study order."""
+        return sorted(self.done.values(), key=lambda row: self.index[row["curve"]])
+
+    def _write_table(self) -> None:
+        header, rows = study_table(self.ordered(), self.study.factors)
+        write_csv(self.folder / "summary.csv", header, rows)
+
+    def write_summary(self) -> None:
+        """Write ``summary.csv`` and ``summary.json`` of the finished curves (study order)."""
+        with self.lock:
+            self._write_table()
+            ordered = self.ordered()
+            write_json(self.folder / "summary.json", {
+                "study": self.study.source, "model": self.plan.model,
+                "factors": list(self.study.factors), "n_curves": len(self.study),
+                "n_fitted": len(ordered), "complete": len(ordered) == len(self.study),
+                "plan": self.plan.describe(),
+                "curves": [{"curve": row["curve"],
+                            "factors": {f: factor_value(v) for f, v in
+                                        zip(self.study.factors, row["levels"], strict=True)},
+                            **row["record"]} for row in ordered]})
+
+    def _chunks(self) -> Iterator[list[int]]:
+        pending = self.pending
+        for start in range(0, len(pending), self.chunk):
+            yield pending[start:start + self.chunk]
+
+    def _task(self, indices: Sequence[int]) -> tuple:
+        curves = [self.study.curves[i] for i in indices]
+        inlets = [self.study.inlets[i] for i in indices]
+        return self.plan, curves, inlets if any(x is not None for x in inlets) else None
+
+    def run(self, *, workers: int | None = None, scheduler: str | None = None,
+            stop: Callable[[], bool] | None = None, progress: bool | None = None) -> int:
+        """Fit the pending curves, appending each finished chunk; then write the summary.
+
+        **Arguments:**
+
+        - `workers`: fit on a local Dask cluster of this many processes; `scheduler`: on the
+          Dask scheduler at this address; neither: in this process.
+        - `stop`: called between chunks; when it returns true the run stops (the finished
+          chunks stay written).
+        - `progress`: show a progress bar (``None``: when standard error is a terminal,
+          else a line per chunk).
+
+        **Returns:** the number of curves fitted by this call.
+        """
+        stop = stop or (lambda: False)
+        pending = len(self.pending)
+        bar = progress_bar(total=pending, description="study", unit="curve",
+                           enabled=progress)
+        count = 0
+
+        def finished(indices, records) -> None:
+            nonlocal count
+            self._append(indices, records)
+            count += len(indices)
+            bar.update(len(indices))
+            if bar.disable and progress is None:
+                print(f"axialmix fit: {self.resumed + count} of {len(self.study)} curves "
+                      "fitted", file=sys.stderr, flush=True)
+
+        try:
+            if workers is None and scheduler is None:
+                for indices in self._chunks():
+                    if stop():
+                        break
+                    finished(indices, fit_chunk(*self._task(indices)))
+            else:
+                self._run_dask(workers, scheduler, stop, finished)
+        finally:
+            bar.close()
+        if not stop():
+            self.write_summary()
+        return count
+
+    def _run_dask(self, workers, scheduler, stop, finished) -> None:
+        from dask.distributed import as_completed
+
+        with _dask_client(workers, scheduler) as client:
+            slots = CHUNKS_PER_WORKER * max(1, len(client.scheduler_info()["workers"]))
+            chunks = self._chunks()
+            running = {}
+
+            def submit() -> bool:
+                indices = next(chunks, None)
+                if indices is None:
+                    return False
+                future = client.submit(fit_chunk, *self._task(indices), pure=False)
+                running[future] = indices
+                return True
+
+            queue = as_completed([])
+            for _ in range(slots):
+                if not submit():
+                    break
+                queue.add(next(reversed(running)))
+            for future in queue:
+                finished(running.pop(future), future.result())
+                if stop():
+                    for other in running:
+                        other.cancel()
+                    break
+                if submit():
+                    queue.add(next(reversed(running)))
+
+
+@contextlib.contextmanager
+def _dask_client(workers: int | None, scheduler: str | None):
+    """A Dask client on the scheduler at `scheduler`, or on a local cluster of `workers`
+    single-threaded processes (closed afterwards)."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        client = Client(scheduler)
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                           dashboard_address=None, silence_logs=logging.ERROR)
+    try:
+        with Client(cluster) as client:
+            yield client
+    finally:
+        cluster.close()
