@@ -31,12 +31,13 @@ Built-in models (also by name through :func:`get_model`):
   ``tau + tau_tank``.
 
 Method-of-moments start values: ``tau`` = mean, ``Pe`` from
-:func:`axialmix.analytic.peclet_from_moments` (closed–closed relation, also used as a start
-for the open–open model), ``n_tanks = mean² / variance``; for the four-compartment model all
-rates equal, matched to the mean residence time. Dead-zone models start from beta = 0.25 with
-the exchange making half of the curve's variance (which sets ``k_d``) and the flowing part the
-rest of the mean and variance; the ADM with a tank starts with the tank making a tenth of the
-variance.
+:func:`axialmix.analytic.approximate_peclet_from_variance_ratio` (the closed–closed relation to 5 %,
+also used as a start for the open–open model; the dead-zone and series models match the moments
+exactly with :func:`axialmix.analytic.peclet_from_moments`), ``n_tanks = mean² / variance``; for the
+four-compartment model all rates equal, matched to the mean residence time. Dead-zone models start
+from beta = 0.25 with the exchange making half of the curve's variance (which sets ``k_d``) and the
+flowing part the rest of the mean and variance; the ADM with a tank starts with the tank making a
+tenth of the variance.
 
 Model-specific facts are optional hooks of a :class:`Model`, so no other module needs to know
 a model by name: ``default_starts`` (how many starts a fit makes by default),
@@ -50,6 +51,7 @@ for a sampled inlet signal, used by the measurement model of :mod:`fitting.measu
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
@@ -75,7 +77,10 @@ from axialmix.analytic import (
     step_response_open,
     step_response_tanks,
 )
-from axialmix.analytic.inverse import transport_from_dimensionless
+from axialmix.analytic.inverse import (
+    approximate_peclet_from_variance_ratio,
+    transport_from_dimensionless,
+)
 from axialmix.analytic.responses import exit_age as _unit_exit_age
 from axialmix.analytic.responses import step_response as _unit_step_response
 from axialmix.analytic.transfer import (
@@ -262,15 +267,23 @@ def moment_estimates(curve: Curve) -> tuple[float, float]:
     return float(mean), float(variance)
 
 
-#: :func:`axialmix.analytic.peclet_from_moments`, jitted (NaN outside its range).
+#: :func:`axialmix.analytic.peclet_from_moments`, jitted (NaN outside its range): the exact
+#: moment match the dead-zone and series models' starts are built on.
 _peclet_from_moments = jax.jit(peclet_from_moments)
+
+
+def _start_peclet(mean: float, variance: float) -> float:
+    """A start value of Pe: within 5 % of the closed–closed Pe with these moments, in NumPy
+    (no JAX program traced for a start value); NaN (keep the default) for moments no
+    closed–closed ADM has (a mean or variance that is not positive, or a ratio of 1 or more)."""
+    if not (mean > 0 and variance > 0):
+        return math.nan
+    return float(approximate_peclet_from_variance_ratio(variance / mean**2))
 
 
 def _adm_guess(curve: Curve) -> dict[str, float]:
     mean, variance = moment_estimates(curve)
-    # NaN (keep the default) for a variance no closed-closed ADM has (ratio >= 1).
-    peclet = float(_peclet_from_moments(mean, variance))
-    return {"tau": mean, "peclet": peclet}
+    return {"tau": mean, "peclet": _start_peclet(mean, variance)}
 
 
 def _tanks_guess(curve: Curve) -> dict[str, float]:
@@ -672,8 +685,14 @@ def _four_compartment_guess(curve: Curve) -> dict[str, float]:
     value for k = 1 (:func:`axialmix.network.residence_time_moments`).
     """
     mean, _ = moment_estimates(curve)
-    unit_mean = float(residence_time_moments(_four_compartment_network(1.0, 1.0, 1.0, 1.0)).mean)
-    return dict.fromkeys(FOUR_COMPARTMENT_NAMES, unit_mean / mean)
+    return dict.fromkeys(FOUR_COMPARTMENT_NAMES, _four_compartment_unit_mean() / mean)
+
+
+@functools.cache
+def _four_compartment_unit_mean() -> float:
+    """The four-compartment network's mean residence time with every rate 1 (1/rate unit),
+    computed once a process (start values ask for it many times a fit)."""
+    return float(residence_time_moments(_four_compartment_network(1.0, 1.0, 1.0, 1.0)).mean)
 
 
 def _four_compartment_function(t, p):

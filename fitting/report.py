@@ -42,7 +42,9 @@ __all__ = [
     "fit_record",
     "fit_table",
     "identifiability_statements",
+    "PLOT_POINTS",
     "plot_fit",
+    "plot_times",
     "render_fit_png",
     "summary_rows",
     "summary_table",
@@ -592,6 +594,21 @@ def _plottable(values) -> np.ndarray:
     return np.where(np.isfinite(values), values, np.nan)
 
 
+#: Points at which plots draw a model curve: one shape for every curve, so the model's compiled
+#: evaluation is traced once a process (the fit command's start-value check uses it too).
+PLOT_POINTS = 399
+
+
+def plot_times(time) -> np.ndarray:
+    """The times at which a fit's plot draws its model curve.
+
+    **Arguments:** `time`: the curve's sample times (its time unit).
+
+    **Returns:** :data:`PLOT_POINTS` times from just after 0 to 1.05 times the last sample.
+    """
+    return np.linspace(0.0, float(np.asarray(time)[-1]) * 1.05, PLOT_POINTS + 1)[1:]
+
+
 def render_fit_png(result: FitResult, grid: GridResult | None = None) -> bytes:
     """The two-panel PNG of :func:`plot_fit` as bytes, nothing written.
 
@@ -614,7 +631,7 @@ def render_fit_png(result: FitResult, grid: GridResult | None = None) -> bytes:
     # fitted amplitude (F for a step inlet, E * u for a measured one).
     shown, label = observed_response(result.model, result.values, result.curve)
     observed = _plottable(shown[every])
-    fine = np.linspace(0.0, float(np.asarray(result.time)[-1]) * 1.05, 400)[1:]
+    fine = plot_times(result.time)
     model = result.model
 
     def normalised(values):

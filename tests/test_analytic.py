@@ -233,6 +233,21 @@ def test_peclet_from_moments_round_trip():
     np.testing.assert_allclose(recovered, peclet, rtol=1e-12)
 
 
+def test_approximate_peclet_is_the_newton_start_and_within_five_percent():
+    from axialmix.analytic.inverse import _starting_peclet
+
+    peclet = np.logspace(-3, 5, 161)
+    ratio = np.asarray(analytic.variance_ratio_closed(peclet))
+    approximate = analytic.approximate_peclet_from_variance_ratio(ratio)
+    assert isinstance(approximate, np.ndarray)
+    # The same rational inversion as the JAX Newton start, in NumPy.
+    np.testing.assert_allclose(approximate, np.asarray(_starting_peclet(jnp.asarray(ratio))),
+                               rtol=1e-14)
+    assert np.max(np.abs(approximate / peclet - 1)) < 0.05
+    outside = analytic.approximate_peclet_from_variance_ratio([0.0, 1.0, 1.5, -0.2])
+    assert np.all(np.isnan(outside))
+
+
 def test_peclet_from_moments_gradient_matches_finite_differences():
     mean, variance = 30.0, 30.0**2 * float(analytic.variance_ratio_closed(17.0))
     gradient = jax.grad(analytic.peclet_from_moments, argnums=(0, 1))(mean, variance)

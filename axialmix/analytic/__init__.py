@@ -48,12 +48,14 @@ from axialmix.analytic.exchange import (
     variance_tanks_exchange,
 )
 from axialmix.analytic.inverse import (
+    approximate_peclet_from_variance_ratio,
     peclet_from_moments,
     peclet_from_physical,
     peclet_from_variance_ratio,
     sherritt_dispersion,
     sherritt_peclet,
     tau_from_physical,
+    transport_from_dimensionless,
 )
 from axialmix.analytic.open import exit_age_open, mean_open, step_response_open, variance_open
 from axialmix.analytic.responses import (
@@ -102,6 +104,7 @@ __all__ = [
     "mean_closed",
     "mean_open",
     "mean_tanks",
+    "approximate_peclet_from_variance_ratio",
     "peclet_from_moments",
     "peclet_from_physical",
     "peclet_from_variance_ratio",
@@ -111,6 +114,7 @@ __all__ = [
     "step_response_open",
     "step_response_tanks",
     "tau_from_physical",
+    "transport_from_dimensionless",
     "transfer_function_closed",
     "variance_closed",
     "variance_open",

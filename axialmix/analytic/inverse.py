@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.typing import ArrayLike
 
 from axialmix._validation import concrete_value, require_positive
 from axialmix.analytic.closed import variance_ratio_closed
 
 __all__ = [
+    "approximate_peclet_from_variance_ratio",
     "peclet_from_moments",
     "peclet_from_physical",
     "peclet_from_variance_ratio",
@@ -24,20 +26,43 @@ __all__ = [
 _NEWTON_STEPS = 6
 
 
-def _starting_peclet(ratio: jax.Array) -> jax.Array:
+def _starting_peclet(ratio, xp=jnp):
     """Invert the rational fit ``(6 + 2 Pe) / (6 + 4 Pe + Pe²)`` of the variance ratio.
 
     The fit has the exact limits ``1 - Pe/3`` (Pe -> 0) and ``2/Pe - 2/Pe²`` (Pe -> ∞); its
     inverse is the positive root of ``r Pe² + (4r - 2) Pe + 6 r - 6 = 0``, written in the form
-    without cancellation on each side of r = 1/2.
+    without cancellation on each side of r = 1/2. `xp` is the array namespace (``jax.numpy``,
+    or ``numpy`` for :func:`approximate_peclet_from_variance_ratio`).
     """
-    root = jnp.sqrt(1.0 + 2.0 * ratio * (1.0 - ratio))
+    root = xp.sqrt(1.0 + 2.0 * ratio * (1.0 - ratio))
     low_ratio = ratio < 0.5
-    r_low = jnp.where(low_ratio, ratio, 0.25)
-    r_high = jnp.where(low_ratio, 0.75, ratio)
-    from_low = ((1.0 - 2.0 * r_low) + jnp.sqrt(1.0 + 2.0 * r_low * (1.0 - r_low))) / r_low
+    r_low = xp.where(low_ratio, ratio, 0.25)
+    r_high = xp.where(low_ratio, 0.75, ratio)
+    from_low = ((1.0 - 2.0 * r_low) + xp.sqrt(1.0 + 2.0 * r_low * (1.0 - r_low))) / r_low
     from_high = 6.0 * (1.0 - r_high) / (root - (1.0 - 2.0 * r_high))
-    return jnp.where(low_ratio, from_low, from_high)
+    return xp.where(low_ratio, from_low, from_high)
+
+
+def approximate_peclet_from_variance_ratio(ratio: ArrayLike) -> np.ndarray:
+    """Return a closed–closed Peclet number within 5 % of the one whose ``sigma²/tau²`` is `ratio`.
+
+    The starting value of :func:`peclet_from_variance_ratio` (the inverse of a rational fit of
+    the variance ratio with its exact limits at both ends), in NumPy: no JAX program is traced,
+    so it suits start values computed once per curve in Python. Ratios outside (0, 1) give NaN.
+
+    **Arguments:**
+
+    - `ratio`: dimensionless variance ``sigma² / tau²`` (any shape).
+
+    **Returns:**
+
+    The approximate Peclet number (dimensionless), a NumPy array of the shape of `ratio`.
+    """
+    ratio = np.asarray(ratio, float)
+    valid = (ratio > 0.0) & (ratio < 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        peclet = _starting_peclet(np.where(valid, ratio, 0.5), np)
+    return np.where(valid, peclet, np.nan)
 
 
 @jax.custom_jvp
