@@ -32,6 +32,7 @@ FITTING_LAYERS = (
     "fitting.cli.anova",
     "fitting.cli.fit",
     "fitting.cli.simulate",
+    "fitting.cli.globalfit",
     "fitting.cli",
     # Deprecated aliases of earlier releases, kept one release: they sit on top.
     "fitting.io",

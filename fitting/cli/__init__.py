@@ -32,6 +32,7 @@ COMMANDS = {
             "fit a residence-time model to RTD curves (CSV files or folders)"),
     "anova": ("fitting.cli.anova",
               "analysis of variance of a response over process factors (a study table)"),
+    "global-fit": ("fitting.cli.globalfit", "joint fit of a study: factor laws, shared parameters"),
 }
 
 

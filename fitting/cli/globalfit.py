@@ -1,0 +1,221 @@
+"""``axialmix global-fit``: fit the curves of a study jointly, with factor laws and shared values.
+
+``axialmix global-fit STUDY.csv --curve-column run --law "log(peclet)=speed+flow"`` reads a
+long-format table (one row per sample: a curve-id column, time, the raw signal, and factor
+columns constant within a curve), fits every curve alone, then all curves jointly with the
+parameters given by the laws or shared (``--shared``) and the rest per curve, and prints the
+laws' coefficients with standard errors and 95 % intervals beside those of the two-stage
+analysis (fit one by one, then regress). ``--json OUT`` writes the result, ``--csv OUT`` one
+row per curve. Exit status: 0 done, 1 the joint fit did not converge, 2 bad input (one line,
+nothing written).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+from pathlib import Path
+
+__all__ = ["add_parser", "parse_law", "run"]
+
+_COMMAND = "global-fit"
+_LAW = re.compile(r"^\s*(?:(log|ln)\s*\(\s*(\w+)\s*\)|(\w+))\s*=\s*(.+?)\s*$")
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Register the ``global-fit`` parser on `subparsers`; returns it."""
+    parser = subparsers.add_parser(
+        _COMMAND,
+        help="joint fit of a study: factor laws, shared parameters",
+        description=__doc__.split("\n\n")[1],
+    )
+    parser.add_argument("table", help="long-format CSV: curve id, time, signal, factor columns")
+    parser.add_argument("--curve-column", required=True, help="the column naming each curve")
+    parser.add_argument("--time-column", default="time",
+                        help="the time column (default 'time'; a unit in the header such as "
+                             "'time_min' or 'time [min]' sets the time unit, else seconds)")
+    parser.add_argument("--value-column", default="value",
+                        help="the raw tracer signal column (default 'value')")
+    parser.add_argument("--law", action="append", default=[], metavar="LAW",
+                        help="a factor law, e.g. 'log(peclet)=speed+flow' (ln Pe linear in "
+                             "the factor columns) or 'tau=flow' (tau itself linear); a term "
+                             "'speed:flow' is a product; repeat for several parameters")
+    parser.add_argument("--shared", default="",
+                        help="parameters with one value for all curves, comma-separated")
+    parser.add_argument("--model", default="adm", help="the residence-time model (default adm)")
+    parser.add_argument("--free", default="",
+                        help="measurement parameters fitted per curve besides the amplitude: "
+                             "dead_time, baseline (comma-separated)")
+    parser.add_argument("--weights", choices=("per-curve", "equal"), default="per-curve",
+                        help="weigh each curve by its own noise level (default) or all equally")
+    parser.add_argument("--json", metavar="OUT", help="write the result as JSON to OUT")
+    parser.add_argument("--csv", metavar="OUT", help="write one row per curve to OUT")
+    return parser
+
+
+def _names(text: str) -> list[str]:
+    return [name.strip() for name in text.split(",") if name.strip()]
+
+
+def parse_law(text: str):
+    """A :class:`~fitting.study.FactorLaw` from ``'log(peclet)=speed+flow'`` or ``'tau=flow'``.
+
+    **Arguments:** `text`: ``[log(]PARAMETER[)]=TERM+TERM...``, a term a factor column or a
+    product ``a:b``.
+
+    **Returns:** the law; a one-line ``ValueError`` for text of another shape.
+    """
+    from fitting.study import FactorLaw
+
+    match = _LAW.match(text)
+    if match is None:
+        raise ValueError(f"--law {text!r}: write it as 'log(peclet)=speed+flow' or 'tau=flow'")
+    transform, logged, plain, right = match.groups()
+    terms = [term.strip() for term in right.split("+")]
+    if any(not re.fullmatch(r"\w+(:\w+)*", term) for term in terms):
+        raise ValueError(f"--law {text!r}: terms are factor columns joined by '+' (a product "
+                         "as a:b)")
+    return FactorLaw(logged or plain, tuple(terms), "log" if transform else "identity")
+
+
+def _read_study(path, curve_column: str, time_column: str, value_column: str,
+                factor_columns: list[str]):
+    """Curves (in order of first appearance) and their factor columns from a long table."""
+    import numpy as np
+
+    from axialmix._csv import DataError, read_table
+    from fitting.data import TIME_UNIT_SECONDS, Curve
+
+    table = read_table(path, header=True, suffix_units=tuple(TIME_UNIT_SECONDS))
+    curve_at = table.column(curve_column)
+    time_at = table.column(time_column)
+    value_at = table.column(value_column)
+    factor_at = [table.column(name) for name in factor_columns]
+    unit = time_at.unit or "s"
+    if unit not in TIME_UNIT_SECONDS:
+        raise table.error(f"time column {time_at.label!r}: unknown time unit {unit!r} "
+                          f"(known: {', '.join(TIME_UNIT_SECONDS)})")
+    rows: dict[str, list] = {}
+    levels: dict[str, list] = {}
+    first_row: dict[str, int] = {}
+
+    def number(cell: str, column, row: int) -> float:
+        try:
+            value = float(cell)
+        except ValueError:
+            raise DataError(table.path, f"{column.label!r} is not a number: {cell!r}",
+                            row) from None
+        if not np.isfinite(value):
+            raise DataError(table.path, f"{column.label!r} is not finite: {cell!r}", row)
+        return value
+
+    for row, cells in table.rows():
+        name = cells[curve_at.index].strip().strip('"')
+        if not name:
+            raise DataError(table.path, f"empty cell in column {curve_at.label!r}", row)
+        point = (number(cells[time_at.index], time_at, row),
+                 number(cells[value_at.index], value_at, row))
+        values = [number(cells[c.index], c, row) for c in factor_at]
+        if name not in rows:
+            rows[name], levels[name], first_row[name] = [], values, row
+        elif values != levels[name]:
+            changed = next(c.label for c, a, b in zip(factor_at, values, levels[name],
+                                                     strict=True) if a != b)
+            raise DataError(table.path, f"factor {changed!r} changes within curve {name!r} "
+                            f"(it must be constant within a curve)", row)
+        rows[name].append(point)
+    if not rows:
+        raise DataError(table.path, "no data rows under the header")
+    curves = []
+    for name, points in rows.items():
+        time, value = np.array(points).T
+        if time.size < 2 or not np.all(np.diff(time) > 0):
+            raise DataError(table.path, f"curve {name!r}: needs at least two samples at "
+                            "strictly increasing times", first_row[name])
+        curves.append(Curve(name, time, value, time_unit=unit, source=str(path),
+                            value_unit=value_at.unit))
+    factors = {column: [levels[name][j] for name in rows]
+               for j, column in enumerate(factor_columns)}
+    return curves, factors
+
+
+def _to_dict(result, two_stage) -> dict:
+    """The JSON form of a global fit and its two-stage comparison."""
+
+    def law_entry(estimate) -> dict:
+        law = estimate.law
+        return {"parameter": law.parameter, "transform": law.transform,
+                "terms": list(law.terms), "law": law.describe(), "method": estimate.method,
+                "dof": estimate.dof,
+                "coefficients": [{"name": n, "value": v, "stderr": e, "ci95": list(c),
+                                  "unit": result.units.get(n, "")}
+                                 for n, v, e, c in zip(estimate.names, estimate.values,
+                                                       estimate.stderr, estimate.ci95,
+                                                       strict=True)]}
+
+    table = result.table()
+    curves = [{key: column[i] for key, column in table.items()}
+              for i in range(len(result.curve_names))]
+    spec = result.spec
+    return {
+        "model": spec.model, "inlet": spec.inlet, "per_curve": list(spec.per_curve),
+        "shared": [{"name": n, "value": result.values[n], "stderr": result.stderr[n],
+                    "ci95": list(result.ci95[n]), "unit": result.units.get(n, "")}
+                   for n in spec.shared],
+        "laws": [law_entry(e) for e in result.laws],
+        "two_stage": [law_entry(e) for e in two_stage],
+        "units": {n: result.units.get(n, "") for n in spec.fitted},
+        "curves": curves,
+        "n_curves": len(result.curve_names), "n_points": result.n_points, "dof": result.dof,
+        "sigma": result.sigma, "sse": result.sse, "weights": result.weighting,
+        "converged": result.converged, "status": int(result.status), "message": result.message,
+        "steps": result.n_steps, "wall_time_s": result.wall_time,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``axialmix global-fit`` with parsed `args`; returns the exit status."""
+    from axialmix import _exits
+    from axialmix._csv import DataError
+    from axialmix._files import write_csv, write_json
+
+    for option, target in (("--json", args.json), ("--csv", args.csv)):
+        if target is not None and not Path(target).resolve().parent.is_dir():
+            return _exits.error_line(_COMMAND, f"{option}: folder "
+                                     f"{Path(target).resolve().parent} does not exist")
+    try:
+        from fitting.study import GlobalModel, global_fit, two_stage_law
+
+        laws = tuple(parse_law(text) for text in args.law)
+        spec = GlobalModel(args.model, laws=laws, shared=tuple(_names(args.shared)),
+                           free=tuple(_names(args.free)))
+    except ValueError as error:
+        return _exits.error_line(_COMMAND, str(error))
+    try:
+        curves, factors = _read_study(args.table, args.curve_column, args.time_column,
+                                      args.value_column, list(spec.factors))
+        result = global_fit(spec, curves, factors, weights=args.weights)
+        two_stage = []
+        for law in spec.laws:
+            try:
+                two_stage.append(two_stage_law(law, result.first, factors))
+            except ValueError as error:  # too few curves for the regression: say so
+                print(f"two-stage regression of {law.parameter}: {error}")
+    except DataError as error:
+        return _exits.error_line(_COMMAND, error.compact())
+    except ValueError as error:
+        return _exits.error_line(_COMMAND, f"{args.table}: {error}")
+    print(result.report())
+    for estimate in two_stage:
+        print(estimate.report())
+    table = result.table()
+    names = [n for n in spec.fitted]
+    print(f"\n{'curve':<12} " + " ".join(f"{n:>12} {'se':>9}" for n in names))
+    for i, curve in enumerate(table["curve"]):
+        print(f"{curve:<12} " + " ".join(f"{table[n][i]:>12.5g} {table[n + '_stderr'][i]:>9.3g}"
+                                         for n in names))
+    if args.json is not None:
+        write_json(args.json, _to_dict(result, two_stage))
+    if args.csv is not None:
+        write_csv(args.csv, list(table), list(zip(*table.values(), strict=True)))
+    return _exits.OK if result.converged else _exits.FAILED
