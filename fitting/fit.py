@@ -36,7 +36,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -521,42 +521,73 @@ def _relative_weights(result: FitResult, loss: str, floor: float) -> np.ndarray:
     return 1.0 / (size**2 if loss == "sse" else size)
 
 
-def _refit_with_relative_errors(model, curves: Sequence[Curve], first: Sequence[FitResult],
-                                settings: FitSettings) -> list[FitResult]:
-    """Iteratively reweighted fits: weights from the previous pass's model curves, until the
-    fitted values stop changing (the weights are then those of the fit's own curve)."""
-    results, passes = list(first), 1
+@dataclasses.dataclass
+class _Passes:
+    """The outcome of :func:`_reweighted_passes`: the last pass's fits, how many fits each
+    curve took, and the evaluations and times summed over the passes."""
+
+    results: list[FitResult]
+    count: int
+    evaluations: np.ndarray
+    wall: np.ndarray
+    compile_time: np.ndarray
+
+    def finished(self, first: Sequence[FitResult], settings: FitSettings,
+                 method: str) -> list[FitResult]:
+        """The last pass's fits with the totals, the first pass's starts and `settings`."""
+        return [dataclasses.replace(
+            r, n_evaluations=int(e), wall_time=float(w), compile_time=float(c),
+            method=f"{r.method}; {method}", n_starts=f.n_starts, init_params=f.init_params,
+            settings=settings)
+            for r, f, e, w, c in zip(self.results, first, self.evaluations, self.wall,
+                                     self.compile_time, strict=True)]
+
+
+def _reweighted_passes(model, curves: Sequence[Curve], first: Sequence[FitResult],
+                       settings: FitSettings, max_passes: int, change_limit: float,
+                       next_weights: Callable[[list[FitResult]], list[np.ndarray] | None],
+                       ) -> _Passes:
+    """Fit again with the weights `next_weights` makes from the last pass's fits (one start,
+    from the last fit), until the fitted values change by at most `change_limit` (relative)
+    or `max_passes` fits were made; `next_weights` returns ``None`` to stop early."""
+    results, count = list(first), 1
     evaluations = np.array([r.n_evaluations for r in first])
     wall = np.array([r.wall_time for r in first])
     compile_time = np.array([r.compile_time for r in first])
-    relative = settings.relative_errors
     single = dataclasses.replace(
-        settings, relative_errors=None,
+        settings, relative_errors=None, combined_errors=None,
         multistart=MultiStart(n_starts=1, seed=settings.multistart.seed,
                               warmup_steps=settings.multistart.warmup_steps))
-    for _ in range(relative.max_passes - 1):
+    for _ in range(max_passes - 1):
+        weights = next_weights(results)
+        if weights is None:
+            break
         starts = [r.restart_parameters() for r in results]
-        weights = [_relative_weights(r, settings.loss, relative.floor) for r in results]
         new = _fit_batch(model, curves, starts, weights, single)
-        passes += 1
+        count += 1
         evaluations += [r.n_evaluations for r in new]
         wall += [r.wall_time for r in new]
         compile_time += [r.compile_time for r in new]
         change = max(abs(b.values[n] / a.values[n] - 1) if a.values[n] else abs(b.values[n])
                      for a, b in zip(results, new, strict=True) for n in a.free_names)
         results = new
-        if change <= relative.change:
+        if change <= change_limit:
             break
-    method = f"relative errors: reweighted by 1/model^2 until consistent ({passes} passes)"
-    finished = [
-        _with_effective_dof(dataclasses.replace(
-            r, n_evaluations=int(e), wall_time=float(w), compile_time=float(c),
-            method=f"{r.method}; {method}", n_starts=f.n_starts, init_params=f.init_params,
-            settings=settings,
-        ))
-        for r, f, e, w, c in zip(results, first, evaluations, wall, compile_time, strict=True)
-    ]
-    return [dataclasses.replace(r, error_model=ErrorEstimate("relative", 0.0, r.sigma, passes))
+    return _Passes(results, count, evaluations, wall, compile_time)
+
+
+def _refit_with_relative_errors(model, curves: Sequence[Curve], first: Sequence[FitResult],
+                                settings: FitSettings) -> list[FitResult]:
+    """Iteratively reweighted fits: weights from the previous pass's model curves, until the
+    fitted values stop changing (the weights are then those of the fit's own curve)."""
+    relative = settings.relative_errors
+    passes = _reweighted_passes(
+        model, curves, first, settings, relative.max_passes, relative.change,
+        lambda results: [_relative_weights(r, settings.loss, relative.floor) for r in results])
+    method = f"relative errors: reweighted by 1/model^2 until consistent ({passes.count} passes)"
+    finished = [_with_effective_dof(r) for r in passes.finished(first, settings, method)]
+    return [dataclasses.replace(r, error_model=ErrorEstimate("relative", 0.0, r.sigma,
+                                                             passes.count))
             for r in finished]
 
 
@@ -573,45 +604,26 @@ def _refit_with_combined_errors(model, curves: Sequence[Curve], first: Sequence[
     last fit, refit with weights ``1 / (a² + (b m)²)`` from its model curve, until the fitted
     values stop changing (the weights are then those of the fit's own curve and residuals)."""
     combined = settings.combined_errors
-    results, passes = list(first), 1
-    evaluations = np.array([r.n_evaluations for r in first])
-    wall = np.array([r.wall_time for r in first])
-    compile_time = np.array([r.compile_time for r in first])
-    single = dataclasses.replace(
-        settings, combined_errors=None,
-        multistart=MultiStart(n_starts=1, seed=settings.multistart.seed,
-                              warmup_steps=settings.multistart.warmup_steps))
-    estimates = [_combined_estimate(r) for r in results]
-    used = list(estimates)
-    for _ in range(combined.max_passes - 1):
+    used = [_combined_estimate(r) for r in first]  # the sizes behind the last pass's weights
+
+    def next_weights(results):
+        estimates = [_combined_estimate(r) for r in results]
         if all(a == 0.0 and b == 0.0 for a, b in estimates):
-            break  # an exact fit: no noise to weight by
-        starts = [r.restart_parameters() for r in results]
+            return None  # an exact fit: no noise to weight by
+        used[:] = estimates
         weights = []
         for r, (a, b) in zip(results, estimates, strict=True):
             w = combined_weights(r.predicted, a, b)
             weights.append(w / w.max())  # only relative weights matter; keep them of order 1
-        new = _fit_batch(model, curves, starts, weights, single)
-        passes += 1
-        evaluations += [r.n_evaluations for r in new]
-        wall += [r.wall_time for r in new]
-        compile_time += [r.compile_time for r in new]
-        change = max(abs(b.values[n] / a.values[n] - 1) if a.values[n] else abs(b.values[n])
-                     for a, b in zip(results, new, strict=True) for n in a.free_names)
-        results, used = new, estimates
-        estimates = [_combined_estimate(r) for r in results]
-        if change <= combined.change:
-            break
+        return weights
+
+    passes = _reweighted_passes(model, curves, first, settings, combined.max_passes,
+                                combined.change, next_weights)
     method = (f"additive plus proportional errors: reweighted by 1/(a^2 + (b model)^2), a and "
-              f"b estimated from the residuals, until consistent ({passes} passes)")
-    return [
-        _with_estimated_weight_shape(dataclasses.replace(
-            r, n_evaluations=int(e), wall_time=float(w), compile_time=float(c),
-            method=f"{r.method}; {method}", n_starts=f.n_starts, init_params=f.init_params,
-            settings=settings, error_model=ErrorEstimate("combined", a, b, passes)))
-        for r, f, e, w, c, (a, b) in zip(results, first, evaluations, wall, compile_time, used,
-                                         strict=True)
-    ]
+              f"b estimated from the residuals, until consistent ({passes.count} passes)")
+    return [_with_estimated_weight_shape(dataclasses.replace(
+                r, error_model=ErrorEstimate("combined", a, b, passes.count)))
+            for r, (a, b) in zip(passes.finished(first, settings, method), used, strict=True)]
 
 
 def _kept_unweighted(result: FitResult, settings: FitSettings) -> FitResult:
