@@ -95,6 +95,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import importlib.util
 import math
 import os
 import signal
@@ -556,7 +557,6 @@ def _read_study(args: argparse.Namespace, files: Sequence[Path]):
 def _run_study(args: argparse.Namespace, files: Sequence[Path], models, every_settings,
                free: tuple[str, ...], out: Path) -> int:
     """Check the study options and input, then fit the study (see the module docstring)."""
-    from fitting.measurement import measured
     from fitting.study.batch import DEFAULT_CHUNK, StudyPlan, StudyRun, plan_model
 
     if len(models) > 1:
@@ -573,6 +573,9 @@ def _run_study(args: argparse.Namespace, files: Sequence[Path], models, every_se
                          "give one of them")
     if args.workers is not None and not 1 <= args.workers <= 1024:
         raise InputError(f"--workers: must be 1 to 1024 processes, got {args.workers}")
+    if (args.workers is not None or args.scheduler is not None) and (
+            importlib.util.find_spec("distributed") is None):
+        raise InputError("--workers and --scheduler need Dask: pip install 'axialmix[dask]'")
     study = _read_study(args, files)
     per_curve = any(inlet is not None for inlet in study.inlets)
     if per_curve and args.inlet != "pulse":
@@ -587,14 +590,21 @@ def _run_study(args: argparse.Namespace, files: Sequence[Path], models, every_se
                      parameters=tuple(every_settings[0].items()), errors=args.errors,
                      starts=args.starts, length_m=args.length)
     if every_settings[0]:
-        checked = measured(models[0].base, plan_model(plan, None).inlet, free)
-        _check_fixed_curves(checked, every_settings[0], study.curves,
+        _check_fixed_curves(plan_model(plan), every_settings[0], study.curves,
                             [study.source] * len(study))
+    # The folder is locked before its journal is read: another run may be appending to it.
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(f"{out}: --out cannot be created ({error.strerror})") from None
+    lock = _Lock(out)
+    lock.acquire()
     try:
         run = StudyRun(plan, study, out, chunk)
     except ValueError as error:
+        lock.release()
         raise InputError(str(error)) from None
-    return _StudyExecution(run, args, out).execute()
+    return _StudyExecution(run, args, out, lock).execute()
 
 
 def _registered() -> tuple[str, ...]:
@@ -604,12 +614,12 @@ def _registered() -> tuple[str, ...]:
 
 
 class _StudyExecution:
-    """A study run in a worker thread, Ctrl-C in the main thread (as :class:`_Run`)."""
+    """A study run in a worker thread, Ctrl-C in the main thread (as :class:`_Run`); the
+    output folder's `lock` is held already and released at the end."""
 
-    def __init__(self, run, args: argparse.Namespace, out: Path):
-        self.run, self.args, self.out = run, args, out
+    def __init__(self, run, args: argparse.Namespace, out: Path, lock: _Lock):
+        self.run, self.args, self.out, self.lock = run, args, out, lock
         self.stop = threading.Event()
-        self.lock = _Lock(out)
         self.failure: BaseException | None = None
         self.status = OK
 
@@ -617,10 +627,6 @@ class _StudyExecution:
         in_main = threading.current_thread() is threading.main_thread()
         previous = signal.signal(signal.SIGINT, self._interrupt) if in_main else None
         try:
-            try:
-                self.lock.acquire()
-            except InputError as error:
-                return error_line("fit", str(error))
             worker = threading.Thread(target=self._work, name="axialmix-study", daemon=True)
             worker.start()
             while worker.is_alive():
@@ -661,10 +667,13 @@ class _StudyExecution:
         except ValueError as error:
             self.status = error_line("fit", f"{run.study.source}: {error}")
             return
+        except OSError as error:  # a scheduler that cannot be reached, a full disk
+            self.status = error_line("fit", f"{self.out}: {' '.join(str(error).split())}")
+            return
         except BaseException as error:  # shown by the main thread
             self.failure = error
             return
-        rows = [row["record"] for row in run.ordered()]
+        rows = list(run.records())
         converged = sum(bool(r["converged"]) for r in rows)
         misfit = sum(bool((r.get("lack_of_fit") or {}).get("systematic")) for r in rows)
         print(f"{len(rows)} curves: {converged} converged, {misfit} with systematic misfit; "

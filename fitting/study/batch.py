@@ -45,7 +45,7 @@ from typing import Any
 
 import equinox as eqx
 
-from axialmix._files import write_atomic, write_csv, write_json
+from axialmix._files import write_atomic, write_csv
 from axialmix._progress import progress_bar
 from fitting.data import Curve
 from fitting.fit import fit
@@ -216,6 +216,40 @@ def _extra_quantities(record: Mapping[str, Any]) -> list[str]:
     return keys
 
 
+def _table_columns(record: Mapping[str, Any], factors: Sequence[str]
+                   ) -> tuple[list[str], list[str], list[str]]:
+    """The header of a study table, and the parameters and extra quantities it shows."""
+    names = [name for name, entry in record["parameters"].items()
+             if entry.get("vary", True) or entry.get("expr") is not None]
+    extra = _extra_quantities(record)
+    header = ["curve", *factors, "model", "n_points"]
+    for name in names:
+        unit = record["parameters"][name].get("unit")
+        header += [_label(f"{name}{part}", unit)
+                   for part in ("", "_stderr", "_ci95_low", "_ci95_high")]
+    for key in extra:
+        header += [key, f"{key}_stderr", f"{key}_ci95_low", f"{key}_ci95_high"]
+    header += ["errors", "converged", "message", "systematic_misfit", "runs_test_p",
+               "lag1_autocorrelation", "loss", "sse", "n_evaluations", "wall_time_s"]
+    return header, names, extra
+
+
+def _table_row(curve: str, levels: Sequence[str], record: Mapping[str, Any],
+               names: Sequence[str], extra: Sequence[str]) -> list[Any]:
+    cells: list[Any] = [curve, *levels, record["model"], record["n_points"]]
+    for entries, keys in ((record["parameters"], names), (record.get("physical") or {}, extra)):
+        for key in keys:
+            entry = entries.get(key) or {}
+            low, high = entry.get("ci95") or (None, None)
+            cells += [entry.get("value"), entry.get("stderr"), low, high]
+    verdict = record.get("lack_of_fit") or {}
+    cells += [(record.get("error_model") or {}).get("kind"), record["converged"],
+              record["message"], verdict.get("systematic"), verdict.get("runs_test_p"),
+              verdict.get("lag1_autocorrelation"), record["loss"], record["sse"],
+              record["n_evaluations"], round(record["wall_time"], 4)]
+    return cells
+
+
 def study_table(rows: Sequence[Mapping[str, Any]], factors: Sequence[str]
                 ) -> tuple[list[str], list[list[Any]]]:
     """The summary table of a study: one row per curve, rendered from the curves' records.
@@ -225,46 +259,19 @@ def study_table(rows: Sequence[Mapping[str, Any]], factors: Sequence[str]
     - `rows`: per curve ``{"curve": id, "levels": [factor text...], "record": fit record}``.
     - `factors`: the factor names.
 
-    **Returns:** ``(header, rows)``. Columns: ``curve``, the factors (as written), each
-    fitted parameter's value, standard error and 95 % interval (``tau [s]``,
-    ``tau_stderr [s]``, ``tau_ci95_low [s]``, ``tau_ci95_high [s]``: units in brackets,
-    none for dimensionless ones), the same for physical quantities that are not parameters
-    (``velocity_m_per_s``, ``dispersion_m2_per_s``: units in their names), then the error
-    model, convergence, the lack-of-fit verdict and its tests, loss, points, evaluations and
-    wall time.
+    **Returns:** ``(header, rows)``. Columns: ``curve``, the factors (as written), ``model``,
+    ``n_points``, each fitted parameter's value, standard error and 95 % interval
+    (``tau [s]``, ``tau_stderr [s]``, ``tau_ci95_low [s]``, ``tau_ci95_high [s]``: units in
+    brackets, none for dimensionless ones), the same for physical quantities that are not
+    parameters (``velocity_m_per_s``, ``dispersion_m2_per_s``: units in their names), then
+    the error model, convergence and its message, the lack-of-fit verdict and its tests,
+    loss, evaluations and wall time.
     """
     if not rows:
         return ["curve", *factors], []
-    first = rows[0]["record"]
-    names = [name for name, entry in first["parameters"].items()
-             if entry.get("vary", True) or entry.get("expr") is not None]
-    extra = _extra_quantities(first)
-    header = ["curve", *factors, "model", "n_points"]
-    for name in names:
-        unit = first["parameters"][name].get("unit")
-        header += [_label(f"{name}{part}", unit)
-                   for part in ("", "_stderr", "_ci95_low", "_ci95_high")]
-    for key in extra:
-        header += [key, f"{key}_stderr", f"{key}_ci95_low", f"{key}_ci95_high"]
-    header += ["errors", "converged", "message", "systematic_misfit", "runs_test_p",
-               "lag1_autocorrelation", "loss", "sse", "n_evaluations", "wall_time_s"]
-    table = []
-    for row in rows:
-        record = row["record"]
-        cells: list[Any] = [row["curve"], *row["levels"], record["model"], record["n_points"]]
-        for entries, keys in ((record["parameters"], names),
-                              (record.get("physical") or {}, extra)):
-            for key in keys:
-                entry = entries.get(key) or {}
-                low, high = entry.get("ci95") or (None, None)
-                cells += [entry.get("value"), entry.get("stderr"), low, high]
-        verdict = record.get("lack_of_fit") or {}
-        cells += [(record.get("error_model") or {}).get("kind"), record["converged"],
-                  record["message"], verdict.get("systematic"), verdict.get("runs_test_p"),
-                  verdict.get("lag1_autocorrelation"), record["loss"], record["sse"],
-                  record["n_evaluations"], round(record["wall_time"], 4)]
-        table.append(cells)
-    return header, table
+    header, names, extra = _table_columns(rows[0]["record"], factors)
+    return header, [_table_row(row["curve"], row["levels"], row["record"], names, extra)
+                    for row in rows]
 
 
 class StudyRun:
@@ -295,8 +302,12 @@ class StudyRun:
         self.header = {"study": study.source, "digest": study.digest(), "n_curves": len(study),
                        "factors": list(study.factors), "plan": plan.describe()}
         self.index = {name: i for i, name in enumerate(study.ids)}
-        #: Finished curves: ``{id: {"curve", "levels", "record"}}``, from the journal too.
-        self.done: dict[str, dict[str, Any]] = self._resume()
+        self._columns: tuple[list[str], list[str], list[str]] | None = None
+        #: Finished curves: ``{id: summary-table row}``; their records stay in the journal,
+        #: found by :attr:`_offsets` (so memory holds table rows only).
+        self.done: dict[str, list[Any]] = {}
+        self._offsets: dict[str, tuple[int, int]] = {}
+        self._resume()
         #: Curves the journal held when this run began.
         self.resumed = len(self.done)
 
@@ -305,24 +316,27 @@ class StudyRun:
         """Indices (study order) of the curves not fitted yet."""
         return [i for i, name in enumerate(self.study.ids) if name not in self.done]
 
-    def _resume(self) -> dict[str, dict[str, Any]]:
+    def _resume(self) -> None:
         if not self.journal.exists():
             line = json.dumps(self.header, allow_nan=False) + "\n"
             write_atomic(self.journal, lambda stream: stream.write(line))
-            return {}
+            return
         data = self.journal.read_bytes()
         lines = data.split(b"\n")
         kept = len(data) if data.endswith(b"\n") else len(data) - len(lines[-1])
         try:
             header = json.loads(lines[0])
         except ValueError:
+            header = None
+        if not isinstance(header, dict):
             raise ValueError(f"{self.journal}: not a study journal; choose another --out "
-                             "folder or remove the file") from None
-        if header != json.loads(json.dumps(self.header)):
+                             "folder or remove the file")
+        same = ("digest", "n_curves", "factors", "plan")
+        if {k: header.get(k) for k in same} != json.loads(json.dumps(
+                {k: self.header[k] for k in same})):
             what = "data" if header.get("digest") != self.header["digest"] else "settings"
             raise ValueError(f"{self.journal}: holds a study with other {what}; continue it "
                              "with the same input and options, or choose another --out folder")
-        done: dict[str, dict[str, Any]] = {}
         offset = len(lines[0]) + 1
         for line in lines[1:-1]:
             try:
@@ -333,52 +347,79 @@ class StudyRun:
             if row.get("curve") not in self.index:
                 raise ValueError(f"{self.journal}: curve {row.get('curve')!r} is not in the "
                                  "study")
-            done.setdefault(row["curve"], row)
+            if row["curve"] not in self.done:
+                self._keep(row, offset, len(line))
             offset += len(line) + 1
         if kept < len(data):
             with open(self.journal, "r+b") as stream:
                 stream.truncate(kept)
-        return done
+
+    def _keep(self, row: Mapping[str, Any], offset: int, size: int) -> None:
+        if self._columns is None:
+            self._columns = _table_columns(row["record"], self.study.factors)
+        _, names, extra = self._columns
+        self.done[row["curve"]] = _table_row(row["curve"], row["levels"], row["record"],
+                                             names, extra)
+        self._offsets[row["curve"]] = (offset, size)
 
     def _append(self, indices: Sequence[int], records: Sequence[Mapping[str, Any]]) -> None:
         rows = [{"curve": self.study.ids[i], "levels": list(self.study.levels[i]),
                  "record": record} for i, record in zip(indices, records, strict=True)]
-        text = "".join(json.dumps(row, allow_nan=False) + "\n" for row in rows).encode()
+        lines = [json.dumps(row, allow_nan=False).encode() + b"\n" for row in rows]
+        text = b"".join(lines)
         with self.lock:
             handle = os.open(self.journal, os.O_WRONLY | os.O_APPEND)
             try:
+                offset = os.lseek(handle, 0, os.SEEK_END)
                 written = os.write(handle, text)
                 while written < len(text):  # a regular file takes it at once; be sure
                     written += os.write(handle, text[written:])
                 os.fsync(handle)
             finally:
                 os.close(handle)
-            for row in rows:
-                self.done[row["curve"]] = row
+            for row, line in zip(rows, lines, strict=True):
+                self._keep(row, offset, len(line) - 1)
+                offset += len(line)
             self._write_table()
 
-    def ordered(self) -> list[dict[str, Any]]:
-        """The finished curves' rows in study order."""
-        return sorted(self.done.values(), key=lambda row: self.index[row["curve"]])
+    def records(self) -> Iterator[dict[str, Any]]:
+        """The finished curves' records (:func:`fitting.report.fit_record`, with ``curve``
+        and ``factors``), in study order, read back from the journal one at a time."""
+        names = sorted(self._offsets, key=self.index.__getitem__)
+        with open(self.journal, "rb") as stream:
+            for name in names:
+                offset, size = self._offsets[name]
+                stream.seek(offset)
+                row = json.loads(stream.read(size))
+                levels = dict(zip(self.study.factors, row["levels"], strict=True))
+                yield {"curve": name,
+                       "factors": {f: factor_value(v) for f, v in levels.items()},
+                       **row["record"]}
 
     def _write_table(self) -> None:
-        header, rows = study_table(self.ordered(), self.study.factors)
+        header = self._columns[0] if self._columns else ["curve", *self.study.factors]
+        rows = [self.done[name] for name in sorted(self.done, key=self.index.__getitem__)]
         write_csv(self.folder / "summary.csv", header, rows)
 
     def write_summary(self) -> None:
-        """Write ``summary.csv`` and ``summary.json`` of the finished curves (study order)."""
+        """Write ``summary.csv`` and ``summary.json`` (every finished curve's full record, in
+        study order, streamed from the journal)."""
         with self.lock:
             self._write_table()
-            ordered = self.ordered()
-            write_json(self.folder / "summary.json", {
-                "study": self.study.source, "model": self.plan.model,
-                "factors": list(self.study.factors), "n_curves": len(self.study),
-                "n_fitted": len(ordered), "complete": len(ordered) == len(self.study),
-                "plan": self.plan.describe(),
-                "curves": [{"curve": row["curve"],
-                            "factors": {f: factor_value(v) for f, v in
-                                        zip(self.study.factors, row["levels"], strict=True)},
-                            **row["record"]} for row in ordered]})
+            head = {"study": self.study.source, "model": self.plan.model,
+                    "factors": list(self.study.factors), "n_curves": len(self.study),
+                    "n_fitted": len(self.done), "complete": len(self.done) == len(self.study),
+                    "plan": self.plan.describe()}
+
+            def fill(stream) -> None:
+                stream.write(json.dumps(head, indent=2, allow_nan=False)[:-2])
+                stream.write(',\n  "curves": [')
+                for count, record in enumerate(self.records()):
+                    stream.write(",\n" if count else "\n")
+                    stream.write(json.dumps(record, allow_nan=False))
+                stream.write("\n  ]\n}\n")
+
+            write_atomic(self.folder / "summary.json", fill)
 
     def _chunks(self) -> Iterator[list[int]]:
         pending = self.pending

@@ -1,0 +1,306 @@
+"""A study of many synthetic curves: throughput and accuracy against lmfit and scipy loops.
+
+Curves: the closed–closed ADM (exact, :func:`axialmix.analytic.closed.exit_age_closed`) with
+tau log-uniform over 7–225 s and Pe log-uniform over 8–137 (the ranges of MODELS.md section 1),
+amplitude 1, 15–60 samples each (uniform count) evenly spread over 0–3 tau, and Gaussian noise
+of standard deviation 2 % of the curve's peak. Each is fitted as ``axialmix fit`` fits a
+study (:class:`fitting.study.batch.StudyRun`: measurement model A E(t), combined error model,
+the records and summary written to a temporary folder):
+
+* in one process, timed after the solver programs have been compiled (a warm-up chunk with
+  curves of every padded length comes first);
+* on a local Dask cluster of two worker processes, timed after each worker has fitted a
+  warm-up chunk (the cluster's start is shown apart);
+* the peers, on the first ``--subset`` curves: a loop of ``scipy.optimize.curve_fit`` and a
+  loop of ``lmfit`` (least squares, ``leastsq``) on the same model ``A E(t)``, E the NumPy
+  eigenvalue series of ``benchmarks/startup.py`` (independent of JAX), started from the
+  moment estimates; their intervals are ``value ± t(0.975, n - 3) × standard error``.
+
+The table gives curves per second and the ratio to the one-process run, the median and
+95th-percentile relative errors of tau and Pe, and interval coverage (share of curves whose
+95 % interval holds the true value). Run with ``nice``: it loads every core it is given.
+
+    python benchmarks/study.py [--curves 10000] [--dask-curves N] [--subset 200] [--chunk 64]
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import logging
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+# The sibling script benchmarks/fitting.py would shadow the `fitting` package (here and in
+# the Dask workers, which inherit sys.path).
+_HERE = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
+
+TAU_RANGE = (7.0, 225.0)
+PECLET_RANGE = (8.0, 137.0)
+SAMPLES = (15, 60)
+NOISE = 0.02
+
+
+def synthetic_study(count: int, seed: int):
+    """The curves, true (tau, Pe) per curve."""
+    from axialmix.analytic.closed import exit_age_closed
+    from fitting.data import Curve
+    from fitting.study.input import Study
+
+    rng = np.random.default_rng(seed)
+    tau = np.exp(rng.uniform(*np.log(TAU_RANGE), count))
+    peclet = np.exp(rng.uniform(*np.log(PECLET_RANGE), count))
+    sizes = rng.integers(SAMPLES[0], SAMPLES[1] + 1, count)
+    curves = []
+    for i in range(count):
+        t = np.linspace(0.0, 3.0 * tau[i], sizes[i])
+        exact = np.asarray(exit_age_closed(t, tau[i], peclet[i]))
+        noisy = exact + NOISE * exact.max() * rng.standard_normal(t.size)
+        curves.append(Curve(f"c{i:05d}", t, noisy, time_unit="s"))
+    study = Study(tuple(curves), (), tuple(() for _ in curves), tuple(None for _ in curves),
+                  "synthetic")
+    return study, tau, peclet
+
+
+def accuracy(tau, peclet, estimates, intervals) -> dict[str, float]:
+    """Median and 95th-percentile relative errors, coverage of the 95 % intervals."""
+    out = {}
+    for k, (name, truth) in enumerate((("tau", tau), ("Pe", peclet))):
+        value = estimates[:, k]
+        error = np.abs(value / truth - 1.0)
+        error = np.where(np.isfinite(error), error, np.inf)
+        low, high = intervals[:, k, 0], intervals[:, k, 1]
+        out[f"{name}_median"] = float(np.median(error))
+        out[f"{name}_p95"] = float(np.quantile(error, 0.95))
+        out[f"{name}_coverage"] = float(np.mean((low <= truth) & (truth <= high)))
+    return out
+
+
+def ours(study, records_of):
+    """Estimates and intervals of tau and Pe from study records."""
+    estimates, intervals = [], []
+    for record in records_of:
+        p = record["parameters"]
+        estimates.append([p["tau"]["value"], p["peclet"]["value"]])
+        intervals.append([p["tau"]["ci95"] or [np.nan, np.nan],
+                          p["peclet"]["ci95"] or [np.nan, np.nan]])
+    return np.array(estimates, float), np.array(intervals, float)
+
+
+def warm_curves(study):
+    """One curve of each padded length class (16, 32, 64 samples)."""
+    from fitting.solve import padded_length
+
+    seen = {}
+    for curve in study.curves:
+        seen.setdefault(padded_length(len(curve)), curve)
+    return list(seen.values())
+
+
+def run_one_process(plan, study):
+    from fitting.study.batch import StudyRun, fit_chunk
+
+    fit_chunk(plan, warm_curves(study))
+    with tempfile.TemporaryDirectory() as folder:
+        run = StudyRun(plan, study, folder, CHUNK)
+        began = time.perf_counter()
+        run.run(progress=False)
+        seconds = time.perf_counter() - began
+        records = list(run.records())
+    return seconds, records
+
+
+def run_dask(plan, study, workers: int):
+    from dask.distributed import Client, LocalCluster
+
+    from fitting.study.batch import StudyRun, fit_chunk
+
+    began = time.perf_counter()
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                           dashboard_address=None, silence_logs=logging.ERROR)
+    client = Client(cluster)
+    warm = warm_curves(study)
+    futures = [client.submit(fit_chunk, plan, warm, workers=[address], pure=False)
+               for address in client.scheduler_info()["workers"]]
+    client.gather(futures)
+    startup = time.perf_counter() - began
+    try:
+        with tempfile.TemporaryDirectory() as folder:
+            run = StudyRun(plan, study, folder, CHUNK)
+            began = time.perf_counter()
+            run.run(scheduler=cluster.scheduler_address, progress=False)
+            seconds = time.perf_counter() - began
+            records = list(run.records())
+    finally:
+        client.close()
+        cluster.close()
+    return startup, seconds, records
+
+
+def peer_model():
+    """The NumPy closed-closed E(t) of benchmarks/startup.py's peer (its functions only)."""
+    spec = importlib.util.spec_from_file_location("startup_benchmark", _HERE / "startup.py")
+    startup = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(startup)
+    namespace: dict = {}
+    exec(startup.PEER.split("data = np.loadtxt")[0], namespace)  # eigenvalues, exit_age
+    return namespace["exit_age"]
+
+
+def moment_start(t, y):
+    density = np.clip(y, 0, None)
+    area = np.trapezoid(density, t)
+    mean = np.trapezoid(t * density, t) / area
+    variance = np.trapezoid((t - mean) ** 2 * density, t) / area
+    ratio = variance / mean**2
+    peclet = 2.0
+    for _ in range(100):  # sigma^2/tau^2 = 2/Pe - 2/Pe^2 (1 - e^-Pe)
+        peclet = 2 / ratio * (1 - (1 - np.exp(-peclet)) / peclet)
+    return mean, min(max(peclet, 0.5), 1e4), area
+
+
+def run_scipy(study, subset: int):
+    from scipy import stats
+    from scipy.optimize import curve_fit
+
+    exit_age = peer_model()
+
+    def model(t, tau, peclet, amplitude):
+        return amplitude * exit_age(t, tau, peclet)
+
+    estimates, intervals = [], []
+    began = time.perf_counter()
+    for curve in study.curves[:subset]:
+        t, y = curve.time, curve.value
+        start = moment_start(t, y)
+        try:
+            values, covariance = curve_fit(model, t, y, p0=start,
+                                           bounds=([1e-9, 1e-6, 1e-12], np.inf))
+            errors = np.sqrt(np.diag(covariance))
+        except (RuntimeError, ValueError):
+            values, errors = np.full(3, np.nan), np.full(3, np.nan)
+        half = stats.t.ppf(0.975, t.size - 3) * errors
+        estimates.append(values[:2])
+        intervals.append([[values[0] - half[0], values[0] + half[0]],
+                          [values[1] - half[1], values[1] + half[1]]])
+    return time.perf_counter() - began, np.array(estimates), np.array(intervals)
+
+
+def run_lmfit(study, subset: int):
+    import lmfit
+    from scipy import stats
+
+    exit_age = peer_model()
+
+    def model(t, tau, peclet, amplitude):
+        return amplitude * exit_age(t, tau, peclet)
+
+    fitter = lmfit.Model(model)
+    estimates, intervals = [], []
+    began = time.perf_counter()
+    for curve in study.curves[:subset]:
+        t, y = curve.time, curve.value
+        tau0, peclet0, area0 = moment_start(t, y)
+        params = fitter.make_params(tau=dict(value=tau0, min=1e-9),
+                                    peclet=dict(value=peclet0, min=1e-6),
+                                    amplitude=dict(value=area0, min=1e-12))
+        result = fitter.fit(y, params, t=t, method="leastsq")
+        row, band = [], []
+        for name in ("tau", "peclet"):
+            value = result.params[name].value
+            error = result.params[name].stderr
+            half = stats.t.ppf(0.975, t.size - 3) * (error if error is not None else np.nan)
+            row.append(value)
+            band.append([value - half, value + half])
+        estimates.append(row)
+        intervals.append(band)
+    return time.perf_counter() - began, np.array(estimates), np.array(intervals)
+
+
+CHUNK = 64
+
+
+def line(label, count, seconds, unit, figures) -> str:
+    rate = count / seconds
+    return (f"{label:<34}{count:>7}{seconds:>10.1f}{rate:>10.1f}{rate / unit:>9.2f}"
+            f"{figures['tau_median']:>9.2%}{figures['tau_p95']:>9.2%}"
+            f"{figures['Pe_median']:>9.2%}{figures['Pe_p95']:>9.2%}"
+            f"{figures['tau_coverage']:>8.1%}{figures['Pe_coverage']:>8.1%}")
+
+
+def main() -> None:
+    global CHUNK
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--curves", type=int, default=10_000)
+    parser.add_argument("--dask-curves", type=int, default=None,
+                        help="curves for the Dask run (default: --curves)")
+    parser.add_argument("--subset", type=int, default=200, help="curves for the peer loops")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--chunk", type=int, default=64)
+    parser.add_argument("--seed", type=int, default=2024)
+    args = parser.parse_args()
+    CHUNK = args.chunk
+    from fitting.solve import enable_compilation_cache
+    from fitting.study.batch import StudyPlan
+
+    enable_compilation_cache()
+    print(f"{os.cpu_count()} CPUs; load average before: {os.getloadavg()[0]:.2f}", flush=True)
+    study, tau, peclet = synthetic_study(args.curves, args.seed)
+    plan = StudyPlan("adm")
+    header = (f"{'method':<34}{'curves':>7}{'seconds':>10}{'curves/s':>10}{'ratio':>9}"
+              f"{'tau med':>9}{'tau p95':>9}{'Pe med':>9}{'Pe p95':>9}{'cov tau':>8}"
+              f"{'cov Pe':>8}")
+    rows = []
+
+    seconds, records = run_one_process(plan, study)
+    figures = accuracy(tau, peclet, *ours(study, records))
+    unit = args.curves / seconds
+    rows.append(line("axialmix, one process", args.curves, seconds, unit, figures))
+    converged = np.mean([r["converged"] for r in records])
+    print(rows[-1], f"(converged {converged:.1%})", flush=True)
+
+    subset = min(args.subset, args.curves)
+    head = accuracy(tau[:subset], peclet[:subset], *ours(study, records[:subset]))
+    rows.append(line(f"axialmix, same {subset} curves", subset,
+                     sum(r["wall_time"] for r in records[:subset]), unit, head)
+                + "  (fit time only)")
+    print(rows[-1], flush=True)
+
+    seconds, estimates, intervals = run_scipy(study, subset)
+    rows.append(line("scipy curve_fit loop", subset, seconds, unit,
+                     accuracy(tau[:subset], peclet[:subset], estimates, intervals)))
+    print(rows[-1], flush=True)
+    seconds, estimates, intervals = run_lmfit(study, subset)
+    rows.append(line("lmfit loop (leastsq)", subset, seconds, unit,
+                     accuracy(tau[:subset], peclet[:subset], estimates, intervals)))
+    print(rows[-1], flush=True)
+
+    count = args.dask_curves or args.curves
+    part = study if count == args.curves else type(study)(
+        study.curves[:count], (), study.levels[:count], study.inlets[:count], "synthetic")
+    startup, seconds, dask_records = run_dask(plan, part, args.workers)
+    same = all(a["parameters"] == b["parameters"] for a, b in
+               zip(records[:count], dask_records, strict=True))
+    rows.append(line(f"axialmix, Dask {args.workers} workers", count, seconds, unit,
+                     accuracy(tau[:count], peclet[:count], *ours(part, dask_records)))
+                + f"  (+{startup:.1f} s start; parameters equal: {same})")
+    print(rows[-1], flush=True)
+
+    print()
+    print(f"{args.curves} closed-closed ADM curves, tau {TAU_RANGE[0]:g}-{TAU_RANGE[1]:g} s, "
+          f"Pe {PECLET_RANGE[0]:g}-{PECLET_RANGE[1]:g}, {SAMPLES[0]}-{SAMPLES[1]} samples, "
+          f"noise {NOISE:.0%} of the peak; ratio: curves/s over the one-process run")
+    print(header)
+    print("-" * len(header))
+    print("\n".join(rows))
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
