@@ -33,6 +33,8 @@ FITTING_LAYERS = (
     "fitting.cli.fit",
     "fitting.cli.simulate",
     "fitting.cli.globalfit",
+    "fitting.cli.funnel",
+    "fitting.cli.divert",
     "fitting.cli",
     # Deprecated aliases of earlier releases, kept one release: they sit on top.
     "fitting.io",

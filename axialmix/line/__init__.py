@@ -1,7 +1,8 @@
 """Unit operations and lines: from an RTD to manufacturing decisions (MODELS.md §7, §8).
 
 * **Units and lines.** :class:`Unit` is one unit operation's RTD (closed–closed or open–open
-  ADM, tanks in series, a compartment network, a measured curve, or any :class:`UnitModel`);
+  ADM, tanks in series, either with a dead zone, an ADM followed by a stirred tank, a
+  compartment network, a measured curve, or any :class:`UnitModel`);
   it gives E, F, the ramp response ``∫F``, the moments and the transfer function G(s),
   exactly. :class:`Line` puts units in series: transfer functions multiply, means and
   variances add, and E and F come from an exact piecewise-linear convolution on a grid with
@@ -16,7 +17,9 @@
 * **Diversion.** :func:`diversion_window` (when to start and stop, how much), and
   :func:`conservative_diversion_window`, which samples a fit's parameter distribution
   (:func:`sample_units`, the hook for fit results) for a window that covers the true one with
-  a stated probability.
+  a stated probability. :class:`FittedRTD` is a fit result as plain numbers (model name,
+  values, free parameters, covariance): it gives the fitted unit and is the unit factory
+  those functions sample.
 * **Changing throughput.** :class:`FlowSchedule` and the cumulative-throughput clock
   (:func:`throughput_clock`, :func:`equivalent_time`, :func:`exit_age_changing_throughput`,
   :func:`outlet_response_changing_throughput`); networks with scheduled rates are in
@@ -33,6 +36,7 @@ from axialmix.line._diversion import (
     diversion_window,
     sample_units,
 )
+from axialmix.line._fitted import UNIT_BUILDERS, FittedRTD
 from axialmix.line._frequency import (
     frequency_response,
     series_variance_reduction_ratio,
@@ -43,11 +47,15 @@ from axialmix.line._funnel import FunnelResult, FunnelSettings, funnel
 from axialmix.line._line import Line, LineSettings, TabulatedRTD
 from axialmix.line._models import (
     CLOSED_CLOSED,
+    CLOSED_CLOSED_EXCHANGE,
+    CLOSED_CLOSED_TANK,
     EMPIRICAL,
     NETWORK,
     OPEN_OPEN,
     TANKS,
+    TANKS_EXCHANGE,
     UnitModel,
+    transfer_unit_model,
 )
 from axialmix.line._plots import plot_diversion, plot_funnel, plot_line, plot_response
 from axialmix.line._throughput import (
@@ -61,13 +69,18 @@ from axialmix.line._unit import Unit
 
 __all__ = [
     "CLOSED_CLOSED",
+    "CLOSED_CLOSED_EXCHANGE",
+    "CLOSED_CLOSED_TANK",
     "EMPIRICAL",
     "NETWORK",
     "OPEN_OPEN",
     "TANKS",
+    "TANKS_EXCHANGE",
+    "UNIT_BUILDERS",
     "ConservativeDiversion",
     "Disturbance",
     "DiversionWindow",
+    "FittedRTD",
     "FlowSchedule",
     "FunnelResult",
     "FunnelSettings",
@@ -93,5 +106,6 @@ __all__ = [
     "series_variance_reduction_ratio",
     "spectral_variance_reduction_ratio",
     "throughput_clock",
+    "transfer_unit_model",
     "white_noise_variance_reduction_ratio",
 ]

@@ -404,6 +404,7 @@ def conservative_diversion_window(
     samples: int = 1000,
     seed: int = 0,
     scale: str = "linear",
+    content_unit: str = "",
     amount_unit: str = "",
 ) -> ConservativeDiversion:
     """A diversion window that covers the true one with a stated probability, by sampling.
@@ -432,7 +433,7 @@ def conservative_diversion_window(
     - `samples`: number of parameter vectors.
     - `seed`: random seed.
     - `scale`: ``"linear"`` or ``"log"`` (see :func:`sample_units`).
-    - `amount_unit`: unit of the diverted amount.
+    - `content_unit`, `amount_unit`: units of the content and of the diverted amount.
 
     **Returns:**
 
@@ -444,7 +445,8 @@ def conservative_diversion_window(
         raise ValueError(f"method must be 'region' or 'quantile', got {method!r}.")
     nominal = diversion_window(
         unit_factory(jnp.atleast_1d(jnp.asarray(values, float))), disturbance, times,
-        target=target, lower=lower, upper=upper, flow=flow, amount_unit=amount_unit,
+        target=target, lower=lower, upper=upper, flow=flow, content_unit=content_unit,
+        amount_unit=amount_unit,
     )
     parameters = _draw(values, covariance, samples, seed, scale,
                        coverage if method == "region" else None)

@@ -3,12 +3,15 @@
 A :class:`UnitModel` names the functions that evaluate one kind of model from its parameters
 (a dict of arrays) and its static structure (a compartment network, the sample times of a
 measured curve, or None). Every function works elementwise on time arrays of any shape and is
-jit-, grad- and vmap-able in the parameters. New models (exchange-zone ADM, series models, a
-generic transfer-function inversion) plug in by building a :class:`UnitModel` from their own
+jit-, grad- and vmap-able in the parameters. New models (series models, a generic
+transfer-function inversion) plug in by building a :class:`UnitModel` from their own
 functions; only ``exit_age`` and ``cumulative`` are required.
 
 Built-in models: the closed–closed and open–open ADM and tanks in series
-(:mod:`axialmix.analytic`, exact), a continuous compartment network
+(:mod:`axialmix.analytic`, exact), the closed–closed ADM and tanks in series with a dead
+zone and the closed–closed ADM followed by a stirred tank (MODELS.md §6; their transfer
+functions from :mod:`axialmix.analytic.transfer`, inverted exactly by
+:mod:`axialmix.analytic.responses`), a continuous compartment network
 (:mod:`axialmix.network`, exact matrix exponentials) and a measured curve used empirically
 (the piecewise-linear interpolant of its samples, zero outside them, integrated exactly).
 """
@@ -38,6 +41,15 @@ from axialmix.analytic import (
     variance_open,
     variance_tanks,
 )
+from axialmix.analytic import responses as _responses
+from axialmix.analytic.transfer import (
+    ClosedClosedADM,
+    ExchangeZone,
+    Series,
+    StirredTank,
+    TanksInSeries,
+    TransferFunction,
+)
 from axialmix.network import (
     cumulative_exit_age,
     exit_age,
@@ -48,11 +60,15 @@ from axialmix.network import (
 
 __all__ = [
     "CLOSED_CLOSED",
+    "CLOSED_CLOSED_EXCHANGE",
+    "CLOSED_CLOSED_TANK",
     "EMPIRICAL",
     "NETWORK",
     "OPEN_OPEN",
     "TANKS",
+    "TANKS_EXCHANGE",
     "UnitModel",
+    "transfer_unit_model",
 ]
 
 Parameters = dict[str, Array]
@@ -165,14 +181,15 @@ def _tanks_cumulative(t, p, _):
 
 def _tanks_ramp(t, p, _):
     # ∫_0^t F = t F(t) - ∫_0^t s E(s) ds, and s E_n(s) = tau E_{n+1}(s) for the gamma density
-    # of shape n and rate n/tau, so the second term is tau P(n+1, n t/tau).
+    # of shape n and rate n/tau, so the second term is tau P(n+1, x) with x = n t/tau; and
+    # P(n+1, x) = P(n, x) - x^n e^{-x} / Γ(n+1), which leaves one incomplete gamma function
+    # (the costly part to compile).
     tau, n = p["tau"], p["n_tanks"]
     t = jnp.asarray(t, float)
     positive = t > 0
     scaled = n * jnp.where(positive, t, 1.0) / tau
-    value = t * jax.scipy.special.gammainc(n, scaled) - tau * jax.scipy.special.gammainc(
-        n + 1.0, scaled
-    )
+    term = jnp.exp(n * jnp.log(scaled) - scaled - jax.scipy.special.gammaln(n + 1.0))
+    value = (t - tau) * jax.scipy.special.gammainc(n, scaled) + tau * term
     return jnp.where(positive, value, 0.0)
 
 
@@ -196,6 +213,100 @@ TANKS = UnitModel(
     moments=_tanks_moments,
 )
 """Tanks in series (gamma RTD), parameters ``tau`` (total mean, time) and ``n_tanks`` (real)."""
+
+
+# ------------------------------------------------------------------ transfer-function units
+def _flat_call(function: Callable[[Array], Array], t: Array) -> Array:
+    """Evaluate an elementwise function of a 1-D time array at times of any shape."""
+    t = jnp.asarray(t, float)
+    return function(t.reshape(-1)).reshape(t.shape)
+
+
+def transfer_unit_model(
+    name: str,
+    parameter_names: tuple[str, ...],
+    build: Callable[[Parameters], TransferFunction],
+    positive: tuple[str, ...] = (),
+) -> UnitModel:
+    """A :class:`UnitModel` from a function that builds an :mod:`axialmix.analytic` transfer unit.
+
+    E, F and the ramp response are the exact inversions of :mod:`axialmix.analytic.responses`
+    (contour integrals, any order of times), G and the moments come from the transfer unit
+    itself. Make each model once (a module-level constant): units of one model share their
+    compiled programs only when `build` is the same function.
+
+    **Arguments:**
+
+    - `name`: the model's name.
+    - `parameter_names`: the keys of the parameter dict.
+    - `build`: ``parameters -> TransferFunction`` (traceable).
+    - `positive`: parameters that must be positive.
+
+    **Returns:**
+
+    A :class:`UnitModel`.
+    """
+
+    def exit_age_(t, p, _):
+        return _flat_call(lambda x: _responses.exit_age(build(p), x), t)
+
+    def cumulative_(t, p, _):
+        return _flat_call(lambda x: _responses.step_response(build(p), x), t)
+
+    def ramp_(t, p, _):
+        return _flat_call(lambda x: _responses.ramp_response(build(p), x), t)
+
+    def transfer_(s, p, _):
+        return build(p).transfer(jnp.asarray(s, complex))
+
+    def moments_(p, _):
+        unit = build(p)
+        return unit.mean(), unit.variance()
+
+    return UnitModel(
+        name=name,
+        parameter_names=parameter_names,
+        positive=positive,
+        exit_age=exit_age_,
+        cumulative=cumulative_,
+        ramp=ramp_,
+        transfer_function=transfer_,
+        moments=moments_,
+    )
+
+
+def _closed_exchange(p):
+    return ExchangeZone(ClosedClosedADM(p["tau"], p["peclet"]), p["beta"], p["k_d"])
+
+
+def _tanks_exchange(p):
+    return ExchangeZone(TanksInSeries(p["tau"], p["n_tanks"]), p["beta"], p["k_d"])
+
+
+def _closed_tank(p):
+    return Series(ClosedClosedADM(p["tau"], p["peclet"]), StirredTank(p["tau_tank"]))
+
+
+CLOSED_CLOSED_EXCHANGE = transfer_unit_model(
+    "closed_closed_exchange", ("tau", "peclet", "beta", "k_d"), _closed_exchange,
+    positive=("tau", "peclet", "k_d"),
+)
+"""Closed–closed ADM with a dead zone (MODELS.md §6): ``tau`` (mobile space time), ``peclet``,
+``beta`` (dead-zone to mobile hold-up, >= 0), ``k_d`` (exchange rate, 1/time); mean
+``(1 + beta) tau``."""
+
+TANKS_EXCHANGE = transfer_unit_model(
+    "tanks_exchange", ("tau", "n_tanks", "beta", "k_d"), _tanks_exchange,
+    positive=("tau", "n_tanks", "k_d"),
+)
+"""Tanks in series with a dead zone: ``tau`` (mobile mean), ``n_tanks``, ``beta``, ``k_d``."""
+
+CLOSED_CLOSED_TANK = transfer_unit_model(
+    "closed_closed_tank", ("tau", "peclet", "tau_tank"), _closed_tank,
+    positive=("tau", "peclet", "tau_tank"),
+)
+"""Closed–closed ADM then a stirred tank: ``tau``, ``peclet``, ``tau_tank``; mean
+``tau + tau_tank``."""
 
 
 # ------------------------------------------------------------------ compartment network

@@ -21,10 +21,13 @@ from axialmix._validation import (
 from axialmix.line import _grid
 from axialmix.line._models import (
     CLOSED_CLOSED,
+    CLOSED_CLOSED_EXCHANGE,
+    CLOSED_CLOSED_TANK,
     EMPIRICAL,
     NETWORK,
     OPEN_OPEN,
     TANKS,
+    TANKS_EXCHANGE,
     UnitModel,
     moments_from_transfer_function,
 )
@@ -72,10 +75,12 @@ def _time_array(name: str, t: ArrayLike) -> Array:
 class Unit(eqx.Module):
     """The residence time distribution of one unit operation (immutable, a JAX pytree).
 
-    Build one with :meth:`closed_closed`, :meth:`open_open`, :meth:`tanks`, :meth:`network`,
-    :meth:`empirical` or, for any other model, :meth:`from_model`. The parameters are array
-    leaves, so units can be made inside ``jax.vmap`` (for example from samples of a fit's
-    parameter distribution, :func:`axialmix.line.sample_units`) and differentiated.
+    Build one with :meth:`closed_closed`, :meth:`open_open`, :meth:`tanks`,
+    :meth:`closed_closed_exchange`, :meth:`tanks_exchange`, :meth:`closed_closed_tank`,
+    :meth:`network`, :meth:`empirical` or, for any other model, :meth:`from_model`. The
+    parameters are array leaves, so units can be made inside ``jax.vmap`` (for example from
+    samples of a fit's parameter distribution, :func:`axialmix.line.sample_units`) and
+    differentiated.
 
     **Arguments:**
 
@@ -192,6 +197,95 @@ class Unit(eqx.Module):
         """
         return cls.from_model(
             TANKS, {"tau": tau, "n_tanks": n_tanks}, name=name, time_unit=time_unit
+        )
+
+    @classmethod
+    def closed_closed_exchange(
+        cls,
+        tau: ArrayLike,
+        peclet: ArrayLike,
+        beta: ArrayLike,
+        k_d: ArrayLike,
+        *,
+        name: str = "",
+        time_unit: str = "s",
+    ) -> Unit:
+        """A closed–closed ADM whose flowing material exchanges with a dead zone (MODELS.md §6).
+
+        **Arguments:**
+
+        - `tau`: space time of the flowing material (time unit, positive); the mean residence
+          time is ``(1 + beta) tau``.
+        - `peclet`: Peclet number (positive).
+        - `beta`: dead-zone to flowing hold-up (dimensionless, >= 0).
+        - `k_d`: exchange rate (1/time unit, positive).
+        - `name`, `time_unit`: label and unit of time.
+
+        **Returns:**
+
+        A :class:`Unit` with exact E, F, ramp response and G.
+        """
+        return cls.from_model(
+            CLOSED_CLOSED_EXCHANGE, {"tau": tau, "peclet": peclet, "beta": beta, "k_d": k_d},
+            name=name, time_unit=time_unit,
+        )
+
+    @classmethod
+    def tanks_exchange(
+        cls,
+        tau: ArrayLike,
+        n_tanks: ArrayLike,
+        beta: ArrayLike,
+        k_d: ArrayLike,
+        *,
+        name: str = "",
+        time_unit: str = "s",
+    ) -> Unit:
+        """Tanks in series whose flowing material exchanges with a dead zone (MODELS.md §6).
+
+        **Arguments:**
+
+        - `tau`: mean residence time of the flowing material (time unit, positive).
+        - `n_tanks`: number of tanks (positive real).
+        - `beta`: dead-zone to flowing hold-up (dimensionless, >= 0).
+        - `k_d`: exchange rate (1/time unit, positive).
+        - `name`, `time_unit`: label and unit of time.
+
+        **Returns:**
+
+        A :class:`Unit` with exact E, F, ramp response and G.
+        """
+        return cls.from_model(
+            TANKS_EXCHANGE, {"tau": tau, "n_tanks": n_tanks, "beta": beta, "k_d": k_d},
+            name=name, time_unit=time_unit,
+        )
+
+    @classmethod
+    def closed_closed_tank(
+        cls,
+        tau: ArrayLike,
+        peclet: ArrayLike,
+        tau_tank: ArrayLike,
+        *,
+        name: str = "",
+        time_unit: str = "s",
+    ) -> Unit:
+        """A closed–closed ADM followed by a stirred tank, as one unit (exact product of G).
+
+        **Arguments:**
+
+        - `tau`: space time of the dispersed section (time unit, positive).
+        - `peclet`: its Peclet number (positive).
+        - `tau_tank`: mean residence time of the tank (time unit, positive).
+        - `name`, `time_unit`: label and unit of time.
+
+        **Returns:**
+
+        A :class:`Unit` whose mean is ``tau + tau_tank``.
+        """
+        return cls.from_model(
+            CLOSED_CLOSED_TANK, {"tau": tau, "peclet": peclet, "tau_tank": tau_tank},
+            name=name, time_unit=time_unit,
         )
 
     @classmethod

@@ -33,6 +33,8 @@ COMMANDS = {
     "anova": ("fitting.cli.anova",
               "analysis of variance of a response over process factors (a study table)"),
     "global-fit": ("fitting.cli.globalfit", "joint fit of a study: factor laws, shared parameters"),
+    "funnel": ("fitting.cli.funnel", "funnel plot: largest outlet deviation of feed disturbances"),
+    "divert": ("fitting.cli.divert", "diversion window after a feed disturbance, with uncertainty"),
 }
 
 

@@ -1,0 +1,321 @@
+"""``axialmix divert``: when to divert off-specification material after a feed disturbance.
+
+    axialmix divert --model M [--set NAME=VALUE ...] [--time-unit s]
+                    (--disturbance KIND:KEY=VALUE,... | --trace FILE)
+                    [--target 100] [--limits -5,5] [--absolute-limits] [--content-unit %]
+                    [--flow KG_PER_H] [--until T] [--points N]
+                    [--coverage 0.95] [--samples N] [--method region|quantile] [--seed N]
+                    [--json OUT] [--png OUT]
+
+The outlet content is ``target + E ⊗ δu`` for the inlet deviation δu; diversion starts when
+it first leaves the specification limits and stops when it last returns
+(:func:`axialmix.line.diversion_window`); the diverted amount is the flow over that window,
+in kg for ``--flow`` in kg/h (the time unit of the RTD converted). Limits are percentages of
+``--target`` (``--limits -5,5``: from 95 % to 105 % of it) or, with ``--absolute-limits``,
+contents in the unit of the target.
+
+The disturbance is ``--disturbance`` ``step:magnitude=M,start=T``,
+``square:magnitude=M,duration=D,start=T``, ``ramp:magnitude=M,duration=D,start=T`` (then held)
+or ``pulse:amount=A,at=T`` (content unit × time unit), magnitudes in the content unit; or
+``--trace FILE``, a feeder's measured content over time (a CSV of time and content in the
+RTD's time unit and the content unit, linear between samples), whose deviation from the
+target enters.
+
+The RTD is ``--model`` with ``--set`` (as for ``axialmix funnel``), or a fit's JSON file. A
+fit's covariance makes the window uncertain: the conservative window covers the window of
+the true RTD with probability ``--coverage`` (:func:`axialmix.line.conservative_diversion_window`,
+``--method region``: earliest start and latest stop over ``--samples`` parameter vectors
+filling the fit's confidence region, log-normal for positive parameters). Exit status: 0
+done, 2 bad input (one line, nothing written).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from fitting.cli.funnel import (
+    OptionError,
+    add_model_options,
+    check_output,
+    numbers,
+    rtd_from_options,
+)
+
+__all__ = ["DISTURBANCES", "add_parser", "run"]
+
+_COMMAND = "divert"
+
+#: Disturbance kind -> (required keys, optional keys with defaults).
+DISTURBANCES = {
+    "step": (("magnitude",), {"start": 0.0}),
+    "square": (("magnitude", "duration"), {"start": 0.0}),
+    "ramp": (("magnitude", "duration"), {"start": 0.0}),
+    "pulse": (("amount",), {"at": 0.0}),
+}
+#: Seconds per hour: ``--flow`` is in kg/h.
+_HOUR = 3600.0
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Register the ``divert`` parser on `subparsers`; returns it."""
+    parser = subparsers.add_parser(
+        _COMMAND,
+        help="diversion window after a feed disturbance, with a fit's uncertainty",
+        description="When to start and stop diverting material after a feed disturbance, "
+        "and how much, from a model or a fit (with a conservative window from its "
+        "covariance).",
+    )
+    add_model_options(parser)
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--disturbance", metavar="KIND:KEY=VALUE,...",
+                        help="step:magnitude=M,start=T | square:magnitude=M,duration=D,"
+                        "start=T | ramp:magnitude=M,duration=D,start=T | pulse:amount=A,at=T")
+    source.add_argument("--trace", metavar="FILE",
+                        help="a feeder's content over time (CSV: time, content)")
+    parser.add_argument("--target", type=float, default=100.0,
+                        help="content at steady state (default 100, in --content-unit)")
+    parser.add_argument("--limits", default="-5,5",
+                        help="LOW,HIGH specification limits in percent of the target "
+                        "(default -5,5), or contents with --absolute-limits")
+    parser.add_argument("--absolute-limits", action="store_true",
+                        help="--limits are contents, not percentages of the target")
+    parser.add_argument("--content-unit", default="%",
+                        help="unit of the content, target and magnitudes (default %%)")
+    parser.add_argument("--flow", type=float, default=None,
+                        help="mass flow through the line (kg/h) for the diverted amount (kg)")
+    parser.add_argument("--until", type=float, default=None,
+                        help="end of the time scanned (time unit; default the last event "
+                        "plus the mean residence time and 10 standard deviations)")
+    parser.add_argument("--points", type=int, default=2001,
+                        help="scan times (default 2001); crossings are then found exactly")
+    parser.add_argument("--coverage", type=float, default=0.95,
+                        help="probability that the conservative window covers the true one "
+                        "(default 0.95; needs a fit with a covariance)")
+    parser.add_argument("--samples", type=int, default=1000,
+                        help="parameter vectors sampled for the conservative window "
+                        "(default 1000)")
+    parser.add_argument("--method", choices=("region", "quantile"), default="region",
+                        help="conservative window over the confidence region (default, "
+                        "guaranteed) or from quantiles of the sampled windows")
+    parser.add_argument("--seed", type=int, default=0, help="random seed of the sampling")
+    parser.add_argument("--json", metavar="OUT", help="write the windows as JSON to OUT")
+    parser.add_argument("--png", metavar="OUT", help="draw the outlet and the windows to OUT")
+    return parser
+
+
+def _disturbance_spec(text: str) -> tuple[str, dict[str, float]]:
+    kind, colon, rest = text.partition(":")
+    kind = kind.strip().lower()
+    if kind not in DISTURBANCES:
+        raise OptionError(f"--disturbance: unknown kind {kind!r}; kinds: "
+                          + ", ".join(DISTURBANCES))
+    required, optional = DISTURBANCES[kind]
+    values = dict(optional)
+    for item in (rest.split(",") if colon and rest.strip() else []):
+        key, equals, number = item.partition("=")
+        key = key.strip()
+        if not equals or key not in (*required, *optional):
+            raise OptionError(f"--disturbance {kind}: expected KEY=VALUE with keys "
+                              f"{', '.join((*required, *optional))}, got {item.strip()!r}")
+        (values[key],) = numbers(f"--disturbance {kind} {key}", number)
+    missing = [key for key in required if key not in values]
+    if missing:
+        raise OptionError(f"--disturbance {kind} needs {', '.join(missing)}")
+    if "duration" in values and values["duration"] <= 0:
+        raise OptionError(f"--disturbance {kind}: duration must be positive")
+    return kind, values
+
+
+def _read_trace(path: str):
+    import numpy as np
+
+    from axialmix._csv import DataError, read_table
+
+    try:
+        table = read_table(path, decimal="auto")
+        if len(table.columns) < 2:
+            raise table.error("needs two columns: time and content")
+        rows, values = table.numbers([0, 1], allow_extra_cells=True)
+    except DataError as error:
+        raise OptionError(error.compact()) from None
+    if rows.size < 2:
+        raise OptionError(f"{path}: a trace needs at least two rows")
+    steps = np.diff(values[:, 0])
+    if (steps <= 0).any():
+        k = int(np.argmax(steps <= 0)) + 1
+        raise OptionError(f"{path}:{rows[k]}: time {values[k, 0]:g} does not increase")
+    return values[:, 0], values[:, 1]
+
+
+def _limits(args) -> tuple[float, float]:
+    given = numbers("--limits", args.limits)
+    if len(given) != 2:
+        raise OptionError(f"--limits needs LOW,HIGH, got {args.limits!r}")
+    low, high = given
+    if not math.isfinite(args.target):
+        raise OptionError("--target must be a finite number")
+    if not args.absolute_limits:
+        low, high = args.target * (1 + low / 100), args.target * (1 + high / 100)
+    if not low < high:
+        raise OptionError(f"--limits: the lower limit {low:g} must be below the upper {high:g}")
+    if not low <= args.target <= high:
+        raise OptionError(f"--limits [{low:g}, {high:g}] do not contain the target "
+                          f"{args.target:g}")
+    return low, high
+
+
+def _check(args) -> None:
+    if args.points < 16:
+        raise OptionError("--points must be at least 16")
+    if not 0 < args.coverage < 1:
+        raise OptionError("--coverage must lie between 0 and 1")
+    if args.samples < 2:
+        raise OptionError("--samples must be at least 2")
+    if args.flow is not None and not (math.isfinite(args.flow) and args.flow > 0):
+        raise OptionError("--flow must be a positive number (kg/h)")
+    if args.until is not None and not math.isfinite(args.until):
+        raise OptionError("--until must be a finite number")
+    if not 0 <= args.seed < 2**31:
+        raise OptionError("--seed must be a whole number from 0 to 2**31 - 1")
+    check_output("--json", args.json)
+    check_output("--png", args.png)
+
+
+def _describe(window, time_unit: str, amount: str) -> str:
+    start, stop = float(window.start), float(window.stop)
+    if math.isnan(start):
+        return "no diversion: the outlet content stays within the limits"
+    end = "still out of limits at the end of the scan" if math.isinf(stop) else (
+        f"stop {stop:.4g} {time_unit}")
+    text = f"start {start:.4g} {time_unit}, {end}, {stop - start:.4g} {time_unit} long"
+    if amount and math.isfinite(stop):
+        text += f", {float(window.diverted_amount):.4g} {amount} diverted"
+    return text
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``axialmix divert`` with parsed `args`; returns the exit status."""
+    from axialmix import _exits
+
+    try:
+        _check(args)
+        lower, upper = _limits(args)
+        spec = _disturbance_spec(args.disturbance) if args.disturbance is not None else None
+        trace = _read_trace(args.trace) if args.trace is not None else None
+        fitted, description = rtd_from_options(args)
+        if args.flow is not None:
+            from fitting.data import seconds_per
+
+            try:
+                seconds = seconds_per(fitted.time_unit)
+            except ValueError as error:
+                raise OptionError(f"--flow: {error}") from None
+    except OptionError as error:
+        return _exits.error_line(_COMMAND, str(error))
+
+    import numpy as np
+
+    from axialmix._files import write_json
+    from axialmix.line import Disturbance, conservative_diversion_window, diversion_window
+
+    unit = fitted.unit()
+    time_unit, content_unit = fitted.time_unit, args.content_unit
+    units = {"value_unit": content_unit, "time_unit": time_unit}
+    if spec is not None:
+        kind, values = spec
+        if kind == "pulse":
+            disturbance = Disturbance.pulse(values["amount"], values["at"], **units)
+        else:
+            make = {"step": Disturbance.step, "square": Disturbance.square,
+                    "ramp": Disturbance.ramp}[kind]
+            extra = () if kind == "step" else (values["duration"],)
+            disturbance = make(values["magnitude"], *extra, values["start"], **units)
+        first = values.get("start", values.get("at"))
+        last = first + values.get("duration", 0.0)
+        disturbance_record = {"kind": kind, **values}
+    else:
+        trace_times, contents = trace
+        disturbance = Disturbance.trace(trace_times, contents - args.target, **units)
+        first, last = float(trace_times[0]), float(trace_times[-1])
+        disturbance_record = {"kind": "trace", "file": args.trace, "samples": int(contents.size)}
+    spread = float(np.sqrt(unit.variance()))
+    until = args.until if args.until is not None else last + float(unit.mean()) + 10 * spread
+    begin = min(0.0, first)
+    if not until > begin:
+        return _exits.error_line(_COMMAND, f"--until {until:g} must be after {begin:g}")
+    times = np.linspace(begin, until, args.points)
+    flow = 1.0 if args.flow is None else args.flow * seconds / _HOUR  # kg per time unit
+    amount_unit = "kg" if args.flow is not None else ""
+    limits = {"target": args.target, "lower": lower, "upper": upper}
+    nominal = diversion_window(unit, disturbance, times, flow=flow, content_unit=content_unit,
+                               amount_unit=amount_unit, **limits)
+    conservative = None
+    if fitted.free:
+        values = np.asarray(fitted.free_values)
+        covariance = np.asarray(fitted.covariance)
+        scale = "log" if (values > 0).all() else "linear"
+        if scale == "log":
+            covariance = covariance / np.outer(values, values)  # delta method for log p
+        try:
+            conservative = conservative_diversion_window(
+                fitted, values, covariance, disturbance, times, flow=flow,
+                coverage=args.coverage, method=args.method, samples=args.samples,
+                seed=args.seed, scale=scale, content_unit=content_unit,
+                amount_unit=amount_unit, **limits)
+        except ValueError as error:
+            return _exits.error_line(_COMMAND, str(error))
+    outlet = np.asarray(nominal.outlet)
+    print(f"diversion for {description['model']} ({unit.model.name}), mean residence time "
+          f"{float(unit.mean()):.4g} {time_unit}; limits [{lower:g}, {upper:g}] {content_unit}"
+          f", outlet content from {outlet.min():.4g} to {outlet.max():.4g}")
+    print("nominal: " + _describe(nominal, time_unit, amount_unit))
+    if conservative is not None:
+        print(f"conservative ({args.coverage:.0%}, {args.method} over {args.samples} samples "
+              f"of the fit's covariance, {scale} scale): "
+              + _describe(conservative, time_unit, amount_unit))
+    elif not fitted.free:
+        print("no conservative window: the RTD has no covariance (give a fit's JSON file)")
+    if args.json is not None:
+        record = {
+            **description,
+            "disturbance": disturbance_record,
+            "content_unit": content_unit,
+            "target": args.target,
+            "lower": lower,
+            "upper": upper,
+            "flow": None if args.flow is None else {"value": args.flow, "unit": "kg/h"},
+            "scan": {"start": begin, "end": until, "points": args.points},
+            "nominal": nominal.to_dict(),
+            "conservative": None,
+        }
+        if conservative is not None:
+            summary = conservative.to_dict()
+            record["conservative"] = {**summary["conservative"],
+                                      **{k: summary[k] for k in ("coverage", "method",
+                                                                 "samples", "valid_samples",
+                                                                 "diverting_fraction")},
+                                      "scale": scale, "seed": args.seed}
+        write_json(args.json, record)
+    if args.png is not None:
+        _write_png(args.png, conservative if conservative is not None else nominal)
+    return _exits.OK
+
+
+def _write_png(path: str, window) -> None:
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from axialmix._files import write_atomic
+    from axialmix.line import plot_diversion
+
+    figure, ax = plt.subplots(figsize=(7, 4))
+    plot_diversion(window, ax=ax)
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=100)
+    plt.close(figure)
+    write_atomic(path, lambda stream: stream.write(buffer.getvalue()), binary=True)

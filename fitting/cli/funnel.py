@@ -1,0 +1,350 @@
+"""``axialmix funnel``: the funnel plot of a unit operation's RTD (largest outlet deviations).
+
+    axialmix funnel --model M [--set NAME=VALUE ...] [--time-unit s]
+                    --durations D1,D2,... --magnitudes M1,M2,... [--magnitude-unit %]
+                    [--json OUT] [--png OUT]
+
+For every square inlet disturbance of magnitude M and duration D, the largest deviation it
+causes at the outlet, ``M max_t [F(t) - F(t - D)]`` (:func:`axialmix.line.funnel`, exact and
+vectorised). ``--model`` is a model name of ``axialmix fit`` (``adm``, ``adm-open``, ``tanks``,
+``four-compartment``, ``adm-exchange``, ``tanks-exchange``, ``adm-tank``; ``adm-fv`` is the
+closed-closed ADM, evaluated exactly) with every parameter given by ``--set NAME=VALUE`` in
+``--time-unit``, or the JSON file of a fit that ``axialmix fit`` wrote (its values and its
+time unit; ``--set`` then overrides values). The table printed and the JSON key
+``"max_deviation"`` have one row per magnitude and one column per duration; the JSON states
+the durations, magnitudes and their units. Exit status: 0 done, 2 bad input (one line,
+nothing written).
+
+This module is also the adapter from fit results to :mod:`axialmix.line` units (used by
+``axialmix divert``): :func:`fitted_rtd` reads a fit's JSON record into an
+:class:`axialmix.line.FittedRTD` with the covariance of its free model parameters.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "LINE_MODELS",
+    "OptionError",
+    "add_model_options",
+    "add_parser",
+    "check_output",
+    "fitted_rtd",
+    "numbers",
+    "rtd_from_options",
+    "run",
+]
+
+_COMMAND = "funnel"
+
+#: ``axialmix fit`` model names -> :data:`axialmix.line.UNIT_BUILDERS` names. ``adm-fv`` fits
+#: the closed-closed ADM by finite volumes; its unit is the exact closed-closed one.
+LINE_MODELS = {
+    "adm": "closed_closed",
+    "adm-fv": "closed_closed",
+    "adm-open": "open_open",
+    "tanks": "tanks",
+    "four-compartment": "four_compartment",
+    "adm-exchange": "closed_closed_exchange",
+    "tanks-exchange": "tanks_exchange",
+    "adm-tank": "closed_closed_tank",
+}
+
+
+class OptionError(Exception):
+    """Bad command-line input; the message is one line, without the program prefix."""
+
+
+def add_model_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--model``, ``--set`` and ``--time-unit`` (the RTD of a unit) to `parser`."""
+    parser.add_argument("--model", required=True,
+                        help="a model of axialmix fit (" + ", ".join(LINE_MODELS) + ") with "
+                        "--set for its parameters, or the JSON file a fit wrote")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="a parameter value (repeat for each parameter; overrides a fit's)")
+    parser.add_argument("--time-unit", default=None,
+                        help="unit of time of the parameters and durations (default s, or the "
+                        "fit's)")
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Register the ``funnel`` parser on `subparsers`; returns it."""
+    parser = subparsers.add_parser(
+        _COMMAND,
+        help="funnel plot: largest outlet deviation of square feed disturbances",
+        description="Largest outlet deviation for square inlet disturbances of each "
+        "magnitude and duration (funnel plot), from a model or a fit.",
+    )
+    add_model_options(parser)
+    parser.add_argument("--durations", required=True,
+                        help="disturbance durations, comma-separated (time unit)")
+    parser.add_argument("--magnitudes", required=True,
+                        help="disturbance magnitudes, comma-separated (magnitude unit)")
+    parser.add_argument("--magnitude-unit", default="%",
+                        help="unit of the magnitudes and deviations (default %%)")
+    parser.add_argument("--json", metavar="OUT", help="write the funnel as JSON to OUT")
+    parser.add_argument("--png", metavar="OUT", help="draw the funnel plot to OUT (PNG)")
+    return parser
+
+
+# ------------------------------------------------------------------ the adapter
+def numbers(option: str, text: str) -> list[float]:
+    """Comma-separated finite numbers of an option; :class:`OptionError` otherwise."""
+    cells = [cell.strip() for cell in text.split(",")]
+    if not text.strip() or any(cell == "" for cell in cells):
+        raise OptionError(f"{option} needs comma-separated numbers, got {text!r}")
+    values = []
+    for cell in cells:
+        try:
+            value = float(cell)
+        except ValueError:
+            raise OptionError(f"{option}: {cell!r} is not a number") from None
+        if not math.isfinite(value):
+            raise OptionError(f"{option}: {cell!r} is not a finite number")
+        values.append(value)
+    return values
+
+
+def _settings(items: Sequence[str]) -> dict[str, float]:
+    values: dict[str, float] = {}
+    for item in items:
+        name, equals, text = item.partition("=")
+        name = name.strip()
+        if not equals or not name:
+            raise OptionError(f"--set needs NAME=VALUE, got {item!r}")
+        (values[name],) = numbers(f"--set {name}", text)
+    return values
+
+
+def _covariance(record: Mapping[str, Any], free: Sequence[str], source: str) -> list[list[float]]:
+    """The covariance of `free` from a record's standard errors and correlation matrix."""
+    correlation = record.get("correlation") or {}
+    names = list(correlation.get("names") or [])
+    matrix = correlation.get("matrix")
+    missing = [name for name in free if name not in names]
+    if missing or matrix is None:
+        raise OptionError(f"{source}: the fit has no correlation for {', '.join(missing)}")
+    errors = [record["parameters"][name].get("stderr") for name in free]
+    if any(e is None or not math.isfinite(e) for e in errors):
+        raise OptionError(f"{source}: the fit has no standard error for some of "
+                          f"{', '.join(free)}")
+    index = [names.index(name) for name in free]
+    covariance = []
+    for a, i in enumerate(index):
+        row = []
+        for b, j in enumerate(index):
+            r = matrix[i][j]
+            if r is None:
+                raise OptionError(f"{source}: the fit's correlation matrix has empty entries")
+            row.append(float(r) * errors[a] * errors[b])
+        covariance.append(row)
+    return covariance
+
+
+def fitted_rtd(record: Mapping[str, Any], overrides: Mapping[str, float] | None = None, *,
+               source: str = "fit"):
+    """An :class:`axialmix.line.FittedRTD` from the JSON record ``axialmix fit`` writes.
+
+    The model's own parameters are kept (a measurement model's amplitude, dead time and
+    baseline describe the detector, not the unit); the free ones (``"vary"``, no tie) carry
+    the covariance ``stderr_i r_ij stderr_j`` from the record's standard errors and
+    correlation matrix, which is the marginal covariance of those parameters. Values in
+    `overrides` are held fixed at the value given.
+
+    **Arguments:**
+
+    - `record`: the parsed JSON (``model``, ``time_unit``, ``parameters`` with ``value``,
+      ``stderr`` and ``vary``, ``correlation`` with ``names`` and ``matrix``).
+    - `overrides`: ``{name: value}`` to hold fixed.
+    - `source`: the file name, for messages.
+
+    **Returns:** ``(fitted, name)``: the :class:`~axialmix.line.FittedRTD` and the fit's model
+    name. Raises :class:`OptionError` (one line) when the record is not a usable fit.
+    """
+    from axialmix.line import UNIT_BUILDERS, FittedRTD
+
+    overrides = dict(overrides or {})
+    if not isinstance(record, Mapping) or not isinstance(record.get("parameters"), Mapping):
+        raise OptionError(f"{source}: not the JSON record of a fit (no \"parameters\"); a "
+                          "network file cannot be used here")
+    model = record.get("model")
+    if model not in LINE_MODELS:
+        raise OptionError(f"{source}: a fit of model {model!r} cannot be made a unit; models: "
+                          + ", ".join(LINE_MODELS))
+    line_model = LINE_MODELS[model]
+    names = UNIT_BUILDERS[line_model][0]
+    parameters = record["parameters"]
+    unknown = [name for name in overrides if name not in names]
+    if unknown:
+        raise OptionError(f"--set {unknown[0]}: the {model} model has no such parameter "
+                          f"({', '.join(names)})")
+    values = {}
+    for name in names:
+        entry = parameters.get(name)
+        value = None if not isinstance(entry, Mapping) else entry.get("value")
+        if name in overrides:
+            value = overrides[name]
+        if value is None or not isinstance(value, int | float) or not math.isfinite(value):
+            raise OptionError(f"{source}: no finite value of {name}")
+        values[name] = float(value)
+    free = [name for name in names if name not in overrides
+            and parameters[name].get("vary") and not parameters[name].get("expr")]
+    covariance = _covariance(record, free, source) if free else []
+    time_unit = record.get("time_unit") or "s"
+    try:
+        fitted = FittedRTD.from_parameters(line_model, values, free=free,
+                                           covariance=covariance or None, time_unit=time_unit,
+                                           name=str(record.get("data") or model))
+        fitted.unit()  # parameter checks (positive values) on the fitted values
+    except ValueError as error:
+        raise OptionError(f"{source}: {error}") from None
+    return fitted, model
+
+
+def rtd_from_options(args: argparse.Namespace):
+    """The fitted RTD the options ``--model``, ``--set`` and ``--time-unit`` describe.
+
+    **Returns:** ``(fitted, description)``: an :class:`axialmix.line.FittedRTD` (no free
+    parameters for a named model) and a dict for the JSON output (``model``,
+    ``unit_model``, ``source``, ``parameters`` with values and standard errors). Raises
+    :class:`OptionError`.
+    """
+    from axialmix.line import UNIT_BUILDERS, FittedRTD
+
+    overrides = _settings(args.set)
+    model = args.model
+    path = Path(model)
+    if model in LINE_MODELS:
+        line_model = LINE_MODELS[model]
+        names = UNIT_BUILDERS[line_model][0]
+        unknown = [name for name in overrides if name not in names]
+        if unknown:
+            raise OptionError(f"--set {unknown[0]}: the {model} model has no such parameter "
+                              f"({', '.join(names)})")
+        missing = [name for name in names if name not in overrides]
+        if missing:
+            raise OptionError(f"--model {model} needs --set for {', '.join(missing)}")
+        try:
+            fitted = FittedRTD.from_parameters(line_model, overrides,
+                                               time_unit=args.time_unit or "s", name=model)
+            fitted.unit()
+        except ValueError as error:
+            raise OptionError(f"--model {model}: {error}") from None
+        source = None
+    elif path.suffix.lower() == ".json" or path.exists():
+        if not path.is_file():
+            raise OptionError(f"--model {model}: no such model or file (models: "
+                              + ", ".join(LINE_MODELS) + ")")
+        try:
+            record = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+            raise OptionError(f"{model}: cannot be read as JSON ({error})") from None
+        fitted, model = fitted_rtd(record, overrides, source=str(path))
+        if args.time_unit is not None and args.time_unit != fitted.time_unit:
+            raise OptionError(f"--time-unit {args.time_unit}: the fit {path} is in "
+                              f"{fitted.time_unit}")
+        source = str(path)
+    else:
+        raise OptionError(f"--model {model}: no such model or file (models: "
+                          + ", ".join(LINE_MODELS) + ")")
+    errors = dict(zip(fitted.free, [float(e) for e in fitted.standard_errors], strict=True))
+    description = {
+        "model": model,
+        "unit_model": fitted.model,
+        "source": source,
+        "parameters": {
+            name: {"value": float(value), "stderr": errors.get(name)}
+            for name, value in zip(fitted.parameter_names, fitted.values.tolist(), strict=True)
+        },
+        "time_unit": fitted.time_unit,
+    }
+    return fitted, description
+
+
+def check_output(option: str, path: str | None) -> None:
+    """:class:`OptionError` unless the folder of output `path` exists."""
+    if path is None:
+        return
+    folder = Path(path).resolve().parent
+    if not folder.is_dir():
+        raise OptionError(f"{option}: folder {folder} does not exist")
+
+
+def _table(result) -> str:
+    durations = [f"{d:g}" for d in result.durations.tolist()]
+    header = [f"M ({result.magnitude_unit}) \\ D ({result.time_unit})", *durations]
+    rows = [[f"{m:g}", *(f"{x:.4g}" for x in row)]
+            for m, row in zip(result.magnitudes.tolist(), result.max_deviation.tolist(),
+                              strict=True)]
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+    lines = ["  ".join(cell.rjust(w) for cell, w in zip(r, widths, strict=True))
+             for r in [header, *rows]]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``axialmix funnel`` with parsed `args`; returns the exit status."""
+    from axialmix import _exits
+
+    try:
+        durations = numbers("--durations", args.durations)
+        magnitudes = numbers("--magnitudes", args.magnitudes)
+        if any(d <= 0 for d in durations):
+            raise OptionError("--durations must be positive")
+        check_output("--json", args.json)
+        check_output("--png", args.png)
+        fitted, description = rtd_from_options(args)
+    except OptionError as error:
+        return _exits.error_line(_COMMAND, str(error))
+
+    import numpy as np
+
+    from axialmix._files import write_json
+    from axialmix.line import funnel
+
+    unit = fitted.unit()
+    result = funnel(unit, np.asarray(durations), np.asarray(magnitudes),
+                    magnitude_unit=args.magnitude_unit)
+    if not np.all(np.isfinite(np.asarray(result.max_deviation))):
+        return _exits.error_line(_COMMAND, "the model gives no finite funnel at these "
+                                 "parameters")
+    print(f"funnel of {description['model']} ({unit.model.name}), mean residence time "
+          f"{float(unit.mean()):.4g} {unit.time_unit}: largest outlet deviation, rows "
+          f"magnitudes, columns durations")
+    print(_table(result))
+    if args.json is not None:
+        write_json(args.json, {
+            **description,
+            "mean_residence_time": float(unit.mean()),
+            **result.to_dict(),
+            "rows": "magnitudes",
+            "columns": "durations",
+        })
+    if args.png is not None:
+        _write_png(args.png, result)
+    return _exits.OK
+
+
+def _write_png(path: str, result) -> None:
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from axialmix._files import write_atomic
+    from axialmix.line import plot_funnel
+
+    figure, ax = plt.subplots(figsize=(6, 4))
+    plot_funnel(result, ax=ax)
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=100)
+    plt.close(figure)
+    write_atomic(path, lambda stream: stream.write(buffer.getvalue()), binary=True)
