@@ -29,6 +29,7 @@ FITTING_LAYERS = (
     "fitting.study",
     "fitting.report",
     "fitting.study.batch",  # renders each curve through fitting.report
+    "fitting.study.ensemble",
     "fitting.cli.anova",
     "fitting.cli.fit",
     "fitting.cli.simulate",

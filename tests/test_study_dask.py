@@ -14,6 +14,7 @@ import pytest
 from axialmix.analytic.closed import exit_age_closed
 from fitting.data import Curve
 from fitting.study.batch import StudyPlan, StudyRun
+from fitting.study.ensemble import Ensemble, run_ensemble
 from fitting.study.input import Study
 
 distributed = pytest.importorskip("distributed")
@@ -34,6 +35,11 @@ def _study(count: int, seed: int) -> Study:
     return Study(tuple(curves), ("speed",), levels, tuple(None for _ in curves), "synthetic")
 
 
+#: Two outflow rates, two seeds: a particle ensemble small enough for the default suite.
+ENSEMBLE = Ensemble(settings=((("k_out", 1.0),), (("k_out", 2.0),)), seeds=(1, 2),
+                    particles=2_000, tracer=400, steps=1_200, bin_steps=40)
+
+
 def _without_wall_time(path) -> list[list[str]]:
     with open(path, newline="") as stream:
         rows = list(csv.reader(stream))
@@ -52,6 +58,16 @@ def test_two_worker_cluster_gives_the_one_process_summary(tmp_path):
                                   dashboard_address=None, silence_logs=logging.ERROR) as cluster:
         spread = StudyRun(plan, study, tmp_path / "dask", chunk=2)
         assert spread.run(scheduler=cluster.scheduler_address, progress=False) == len(study)
+        simulated = run_ensemble(ENSEMBLE, chunk=1, scheduler=cluster.scheduler_address)
+    # Particle ensembles take the same path: each run depends on its setting and seed only.
+    local = run_ensemble(ENSEMBLE, chunk=3)
+    assert simulated.ids == local.ids == ("s0-seed1", "s0-seed2", "s1-seed1", "s1-seed2")
+    assert simulated.levels == local.levels == (("1.0", "1"), ("1.0", "2"), ("2.0", "1"),
+                                                ("2.0", "2"))
+    for a, b in zip(simulated.curves, local.curves, strict=True):
+        np.testing.assert_array_equal(a.value, b.value)
+        np.testing.assert_array_equal(a.time, b.time)
+    assert not np.array_equal(local.curves[0].value, local.curves[1].value)  # seeds differ
     assert _without_wall_time(tmp_path / "dask" / "summary.csv") == _without_wall_time(
         tmp_path / "alone" / "summary.csv")
     one = json.loads((tmp_path / "alone" / "summary.json").read_text())["curves"]

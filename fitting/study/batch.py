@@ -58,7 +58,7 @@ from fitting.solve import MultiStart, enable_compilation_cache
 from fitting.study.input import Study, factor_value
 
 __all__ = ["DEFAULT_CHUNK", "JOURNAL_NAME", "StudyPlan", "StudyRun", "fit_chunk",
-           "plan_model", "study_table"]
+           "map_chunks", "plan_model", "study_table"]
 
 #: Curves per chunk (and per Dask task) unless told.
 DEFAULT_CHUNK = 64
@@ -462,48 +462,61 @@ class StudyRun:
                       "fitted", file=sys.stderr, flush=True)
 
         try:
-            if workers is None and scheduler is None:
-                for indices in self._chunks():
-                    if stop():
-                        break
-                    finished(indices, fit_chunk(*self._task(indices)))
-            else:
-                self._run_dask(workers, scheduler, stop, finished)
+            map_chunks(fit_chunk, ((indices, self._task(indices)) for indices in self._chunks()),
+                       workers, scheduler, stop, finished)
         finally:
             bar.close()
         if not stop():
             self.write_summary()
         return count
 
-    def _run_dask(self, workers, scheduler, stop, finished) -> None:
-        from dask.distributed import as_completed
 
-        with _dask_client(workers, scheduler) as client:
-            slots = CHUNKS_PER_WORKER * max(1, len(client.scheduler_info()["workers"]))
-            chunks = self._chunks()
-            running = {}
+def map_chunks(task: Callable, chunks: Iterator[tuple[Any, tuple]], workers: int | None,
+               scheduler: str | None, stop: Callable[[], bool],
+               finished: Callable[[Any, Any], None]) -> None:
+    """Run a task on each chunk, in this process or on Dask, handing on each result.
 
-            def submit() -> bool:
-                indices = next(chunks, None)
-                if indices is None:
-                    return False
-                future = client.submit(fit_chunk, *self._task(indices), pure=False)
-                running[future] = indices
-                return True
+    **Arguments:**
 
-            queue = as_completed([])
-            for _ in range(slots):
-                if not submit():
-                    break
-                queue.add(next(reversed(running)))
-            for future in queue:
-                finished(running.pop(future), future.result())
-                if stop():
-                    for other in running:
-                        other.cancel()
-                    break
-                if submit():
-                    queue.add(next(reversed(running)))
+    - `task`: a module-level function (Dask sends it to the workers by reference).
+    - `chunks`: ``(key, arguments)`` pairs; ``task(*arguments)`` is run for each.
+    - `workers`: a local Dask cluster of this many single-threaded processes; `scheduler`:
+      the Dask scheduler at this address; neither: in this process, in order.
+    - `stop`: asked between chunks; true stops the run (tasks in flight are cancelled).
+    - `finished`: called as ``finished(key, result)`` in this process, in the order the
+      chunks finish; on Dask :data:`CHUNKS_PER_WORKER` tasks per worker are in flight.
+
+    **Returns:** ``None``; a task's exception is raised here.
+    """
+    if workers is None and scheduler is None:
+        for key, arguments in chunks:
+            if stop():
+                return
+            finished(key, task(*arguments))
+        return
+    from dask.distributed import as_completed
+
+    with _dask_client(workers, scheduler) as client:
+        slots = CHUNKS_PER_WORKER * max(1, len(client.scheduler_info()["workers"]))
+        running: dict = {}
+        queue = as_completed([])
+
+        def submit() -> None:
+            chunk = next(chunks, None)
+            if chunk is not None:
+                future = client.submit(task, *chunk[1], pure=False)
+                running[future] = chunk[0]
+                queue.add(future)
+
+        for _ in range(slots):
+            submit()
+        for future in queue:
+            finished(running.pop(future), future.result())
+            if stop():
+                for other in running:
+                    other.cancel()
+                return
+            submit()
 
 
 @contextlib.contextmanager
