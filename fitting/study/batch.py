@@ -13,8 +13,9 @@ study around the fits:
   gradient and Jacobian (tested bit for bit). A curve with its own measured inlet signal has
   its own model, so its own program (compiled for that curve alone: slow for many curves).
 * **Chunks.** Curves are fitted in chunks (:data:`DEFAULT_CHUNK` curves); only a chunk's
-  results are held before they are written, so memory stays bounded whatever the study's
-  size.
+  results are held before they are written, and afterwards only their summary-table rows
+  (the full records stay in the journal and are streamed from it into ``summary.json``), so
+  memory grows by a table row per curve, not by a fit.
 * **Resumable.** Each finished chunk is appended to the journal ``summary.jsonl`` in the
   output folder (its first line describes the study and the settings; then one JSON line per
   curve) by one ``write`` and ``fsync``, and ``summary.csv`` is rewritten atomically. A run
@@ -23,10 +24,13 @@ study around the fits:
   twice (a line torn by a kill during the write is dropped and its curve fitted again).
   ``summary.json`` (every curve's full record) is written at the end, and after Ctrl-C.
 * **Dask.** With ``workers=N`` (a local cluster of N single-threaded processes) or a
-  scheduler address, chunks are tasks (:func:`fit_chunk`); each worker process compiles its
-  programs once and reuses them for every chunk it gets. A curve's fit does not depend on
-  the chunk it is in or the process it runs in, so the summary equals the one-process
-  summary (to round-off; only the wall times differ). Dask is imported only then.
+  scheduler address, chunks are tasks (:func:`fit_chunk`, through :func:`map_chunks`); each
+  worker process compiles its programs once and reuses them for every chunk it gets. A
+  curve's fit does not depend on the chunk it is in or the process it runs in (every curve
+  starts from its own moments with the plan's seed, as a single file does), so the summary
+  equals the one-process summary (bit for bit in the tests; only the wall times differ).
+  Dask is imported only then. Particle-simulation ensembles take the same path
+  (:mod:`fitting.study.ensemble`).
 """
 
 from __future__ import annotations
