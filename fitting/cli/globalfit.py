@@ -207,12 +207,13 @@ def run(args: argparse.Namespace) -> int:
         return _exits.error_line(_COMMAND, f"{args.table}: {error}")
     print(result.report())
     for estimate in two_stage:
-        print(estimate.report())
+        print(estimate.report(result.units))
     table = result.table()
-    names = [n for n in spec.fitted]
-    print(f"\n{'curve':<12} " + " ".join(f"{n:>12} {'se':>9}" for n in names))
+    names = list(spec.fitted)
+    labels = [f"{n} ({result.units[n]})" if result.units.get(n) else n for n in names]
+    print(f"\n{'curve':<12} " + " ".join(f"{label:>16} {'se':>9}" for label in labels))
     for i, curve in enumerate(table["curve"]):
-        print(f"{curve:<12} " + " ".join(f"{table[n][i]:>12.5g} {table[n + '_stderr'][i]:>9.3g}"
+        print(f"{curve:<12} " + " ".join(f"{table[n][i]:>16.5g} {table[n + '_stderr'][i]:>9.3g}"
                                          for n in names))
     if args.json is not None:
         write_json(args.json, _to_dict(result, two_stage))

@@ -629,14 +629,23 @@ class LawEstimate:
         return tuple(bool(low <= float(t) <= high)
                      for t, (low, high) in zip(truth, self.ci95, strict=True))
 
-    def report(self) -> str:
-        """The coefficients as a small text table."""
+    def report(self, units: Mapping[str, str] | None = None) -> str:
+        """The coefficients as a small text table.
+
+        **Arguments:** `units`: each coefficient's unit by name (e.g.
+        :attr:`GlobalFitResult.units`), printed in a last column.
+
+        **Returns:** the table as text.
+        """
+        units = units or {}
         lines = [f"{self.law.describe()} ({self.method}, {self.dof:g} degrees of freedom)",
-                 f"  {'coefficient':<24} {'value':>12} {'std err':>11} {'95 % interval':>27}"]
+                 f"  {'coefficient':<24} {'value':>12} {'std err':>11} {'95 % interval':>27}"
+                 + ("  unit" if units else "")]
         for name, value, error, (low, high) in zip(self.names, self.values, self.stderr,
                                                    self.ci95, strict=True):
             lines.append(f"  {name:<24} {value:>12.6g} {error:>11.3g} "
-                         f"[{low:>11.6g}, {high:>11.6g}]")
+                         f"[{low:>11.6g}, {high:>11.6g}]"
+                         + (f"  {units.get(name, '')}" if units else ""))
         return "\n".join(lines)
 
 
@@ -777,7 +786,7 @@ class GlobalFitResult:
                  f"{_WEIGHTING_WORDS[self.weighting]}",
                  f"{self.message} ({self.n_steps} steps)"]
         for estimate in self.laws:
-            lines.append(estimate.report())
+            lines.append(estimate.report(self.units))
         for name in spec.fitted:
             if name in spec.shared:
                 low, high = self.ci95[name]
