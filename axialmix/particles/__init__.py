@@ -4,7 +4,9 @@ Particles with species labels move between well-mixed compartments: every step, 
 connection i -> j, ``moves_ij`` particles chosen at random among those in i move to j; a
 continuous blender takes a feed into its inlet compartments and loses as many over the
 weir. Its expectation is the discrete mean-field network of :mod:`axialmix.network`, but
-nothing of that model's mathematics is used here. Two engines, same random process:
+nothing of that model's mathematics is used here. Exchange may change in time: a move
+schedule (:func:`scheduled_moves`, from a :class:`axialmix.network.RateSchedule`) gives the
+particles moved along each connection at each step. Two engines, same random process:
 ``"count"`` (species counts, multivariate hypergeometric draws, cost independent of the
 number of particles) and ``"identity"`` (individual particles, per-particle histories).
 """
@@ -30,6 +32,7 @@ from axialmix.particles.sampling import (
     species_fraction,
     variance_reduction_ratio,
 )
+from axialmix.particles.schedule import check_move_schedule, move_table, scheduled_moves
 from axialmix.particles.simulate import (
     ENGINES,
     MAX_SEED,
@@ -50,11 +53,13 @@ __all__ = [
     "TracerPulse",
     "axial_radial_grid",
     "check_feed_schedule",
+    "check_move_schedule",
     "chi_square",
     "constant_feed",
     "exit_age_from_outflow",
     "feeder_feed",
     "memory_estimate",
+    "move_table",
     "four_compartment",
     "particle_axial_radial_grid",
     "particle_four_compartment",
@@ -63,6 +68,7 @@ __all__ = [
     "sample_compartments",
     "sample_outflow",
     "sample_variance",
+    "scheduled_moves",
     "simulate",
     "species_fraction",
     "stderr_progress",

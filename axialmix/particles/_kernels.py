@@ -54,15 +54,19 @@ def advance_counts(
 
     ``counts`` is ``(compartments, species)``; ``feed_counts[k, q]`` the species counts fed
     into ``inlets[q]`` at the end of step k of this chunk; ``outflow_record[k]`` receives the
-    species counts that left over the weir during step k of this chunk.
+    species counts that left over the weir during step k of this chunk. ``count`` (moves per
+    table entry) and ``handed_out`` (per compartment) have one row, used at every step, or
+    one row per step of this chunk (scheduled moves).
     """
     n_compartments, n_species = counts.shape
     arrivals = np.zeros((n_compartments, n_species), np.int64)
     selected = np.empty(n_species, np.int64)
     share = np.empty(n_species, np.int64)
+    scheduled = count.shape[0] > 1
     for step in range(n_steps):
+        row = step if scheduled else 0
         for i in range(n_compartments):
-            handed = handed_out[i]
+            handed = handed_out[row, i]
             if handed == 0:
                 continue
             multivariate_hypergeometric(counts[i], holdups[i], handed, selected)
@@ -75,10 +79,10 @@ def advance_counts(
                     for s in range(n_species):
                         share[s] = selected[s]
                 else:
-                    multivariate_hypergeometric(selected, remaining, count[e], share)
+                    multivariate_hypergeometric(selected, remaining, count[row, e], share)
                     for s in range(n_species):
                         selected[s] -= share[s]
-                    remaining -= count[e]
+                    remaining -= count[row, e]
                 target = destination[e]
                 if target >= 0:
                     for s in range(n_species):
@@ -175,7 +179,8 @@ def advance_identities(
     as ``(particle number << bits) | species`` (:func:`species_bits`). Selection is a
     partial Fisher-Yates shuffle of the compartment's slots (cost per particle moved, not
     held); arrivals overwrite the slots just handed out, which balance guarantees are
-    exactly as many. ``counts`` is kept up to date move by move. Moves of particles whose
+    exactly as many (``count`` and ``handed_out`` as in :func:`advance_counts`: one row, or
+    one per step of the chunk). ``counts`` is kept up to date move by move. Moves of particles whose
     species is ``tracked`` are written to ``events`` as ``(particle, step, from, to)``;
     the kernel stops early, before a step
     whose events might not fit. ``progress`` holds ``[steps done, events written, next
@@ -196,7 +201,9 @@ def advance_identities(
             track_any = True
     per_step_events = moved.size
     tally = np.zeros(n_species, np.int64)
+    scheduled = count.shape[0] > 1
     for step in range(n_steps):
+        row = step if scheduled else 0
         if track_any:
             fed = 0
             for q in range(inlets.size):
@@ -207,7 +214,7 @@ def advance_identities(
         global_step = first_step + step
         pointer = 0
         for i in range(n_compartments):
-            handed = handed_out[i]
+            handed = handed_out[row, i]
             if handed == 0:
                 continue
             base = offsets[i]
@@ -233,7 +240,7 @@ def advance_identities(
         for i in range(n_compartments):
             for e in range(start[i], start[i + 1]):
                 target = destination[e]
-                n_moved = count[e]
+                n_moved = count[row, e]
                 if target >= 0:
                     w = write[target]
                     for q in range(n_moved):
@@ -249,7 +256,7 @@ def advance_identities(
                         outflow_record[step, s] += tally[s]
                 if not track_any:
                     continue
-                for p in range(pointer - count[e], pointer):
+                for p in range(pointer - n_moved, pointer):
                     code = moved[p]
                     species = code & mask
                     if tracked[species]:

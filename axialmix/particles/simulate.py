@@ -31,6 +31,7 @@ from axialmix.particles import _kernels
 from axialmix.particles._random import seed_generator, xoshiro_state
 from axialmix.particles.description import ParticleNetwork
 from axialmix.particles.feed import check_feed_schedule
+from axialmix.particles.schedule import check_move_schedule, move_table
 
 __all__ = [
     "ENGINES",
@@ -99,6 +100,8 @@ class SimulationResult:
       every move of a tracked species; ``from = -1`` fed in, ``from = -2`` tagged as tracer
       in place, ``to = -1`` left over the weir.
     - `wall_seconds`: time spent in the simulation loop.
+    - `moves`: the move schedule used ``(steps, connections)``, or ``None`` when every step
+      moved the network's own numbers (see :mod:`axialmix.particles.schedule`).
     """
 
     engine: str
@@ -114,6 +117,7 @@ class SimulationResult:
     tracer: TracerPulse | None
     events: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
     wall_seconds: float = 0.0
+    moves: np.ndarray | None = None
 
     @property
     def final_counts(self) -> np.ndarray:
@@ -122,7 +126,10 @@ class SimulationResult:
 
     def particles_moved(self) -> int:
         """Particles moved in the completed steps (over connections and the weir)."""
-        return self.steps_completed * self.network.moves_per_step
+        if self.moves is None:
+            return self.steps_completed * self.network.moves_per_step
+        done = self.moves[: self.steps_completed]
+        return int(done.sum() + self.steps_completed * self.network.outflow.sum())
 
     def exit_steps(self) -> np.ndarray:
         """Identity engine: the step during which each tracked particle left (``-1`` if still in).
@@ -274,6 +281,11 @@ def _apportion(total: int, weights: np.ndarray) -> np.ndarray:
     return shares
 
 
+def _rows(array: np.ndarray, first: int) -> np.ndarray:
+    """A move table's rows from step `first` on (a one-row table serves every step)."""
+    return array if array.shape[0] == 1 else array[first:]
+
+
 class _CountEngine:
     def __init__(
         self,
@@ -282,10 +294,11 @@ class _CountEngine:
         tracked: np.ndarray,
         seed: int,
         particle_numbers: int,
+        table: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     ) -> None:
         self.network = network
         self.counts = counts
-        self.table = network.outgoing_table()
+        self.table = table
         self.inlets = network.inlets().astype(np.int64)
         # [steps done]: advanced in place by the kernel, so it is right even after Ctrl-C.
         self.progress = np.zeros(1, np.int64)
@@ -295,14 +308,14 @@ class _CountEngine:
         return int(self.progress[0])
 
     def advance(self, schedule: np.ndarray, outflow: np.ndarray, n_steps: int) -> None:
-        start, destination, count = self.table
+        start, destination, count, handed_out = self.table
         _kernels.advance_counts(
             self.counts,
             self.network.holdups,
             start,
             destination,
-            count,
-            self.network.handed_out,
+            _rows(count, self.steps_done),
+            _rows(handed_out, self.steps_done),
             self.inlets,
             schedule,
             outflow,
@@ -329,6 +342,7 @@ class _IdentityEngine:
         tracked: np.ndarray,
         seed: int,
         particle_numbers: int,
+        table: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     ) -> None:
         self.network = network
         self.counts = counts
@@ -338,7 +352,7 @@ class _IdentityEngine:
         self.bits = _kernels.species_bits(counts.shape[1])
         fits = particle_numbers << self.bits <= np.iinfo(np.int32).max
         code_type = np.int32 if fits else np.int64
-        self.table = network.outgoing_table()
+        self.table = table
         self.inlets = network.inlets().astype(np.int64)
         n_species = counts.shape[1]
         self.offsets = np.zeros(network.n_compartments + 1, np.int64)
@@ -353,11 +367,12 @@ class _IdentityEngine:
         del species
         # [steps done, events in the buffer, next particle number]
         self.progress = np.array([0, 0, self.offsets[-1]], np.int64)
-        block = max(_EVENT_BLOCK, 2 * (network.moves_per_step + network.throughput))
+        moves_per_step = int(table[2].sum(axis=1).max(initial=0))
+        block = max(_EVENT_BLOCK, 2 * (moves_per_step + network.throughput))
         self.buffer = np.zeros((block if tracked.any() else 0, 4), np.int64)
         self.blocks: list[np.ndarray] = []
-        self.moved = np.empty(network.moves_per_step, code_type)
-        self.picks = np.empty(int(network.handed_out.max(initial=0)), np.int64)
+        self.moved = np.empty(moves_per_step, code_type)
+        self.picks = np.empty(int(table[3].max(initial=0)), np.int64)
         self.write = np.empty(network.n_compartments, np.int64)
         self.generator = xoshiro_state(seed)
 
@@ -370,7 +385,7 @@ class _IdentityEngine:
         self.progress[1] = 0
 
     def advance(self, schedule: np.ndarray, outflow: np.ndarray, n_steps: int) -> None:
-        start, destination, count = self.table
+        start, destination, count, handed_out = self.table
         first = self.steps_done
         while self.steps_done - first < n_steps:
             offset = self.steps_done - first
@@ -380,8 +395,8 @@ class _IdentityEngine:
                 self.counts,
                 start,
                 destination,
-                count,
-                self.network.handed_out,
+                _rows(count, self.steps_done),
+                _rows(handed_out, self.steps_done),
                 self.inlets,
                 schedule[offset:],
                 outflow[offset:],
@@ -442,6 +457,7 @@ def simulate(
     report_steps: Sequence[int] | None = None,
     tracked_species: Sequence[int] | None = None,
     progress: Callable[[int, int, float], None] | None = None,
+    moves=None,
 ) -> SimulationResult:
     """Simulate the stochastic particle process on a network for a number of steps.
 
@@ -466,6 +482,10 @@ def simulate(
       example to update an :func:`axialmix._progress.progress_bar`). A
       ``KeyboardInterrupt`` raised there or by Ctrl-C stops the run after the current chunk
       and returns what was done.
+    - `moves`: optional move schedule ``(steps, connections)``: the particles moved along
+      each connection at each step (scheduled exchange rates, e.g. from
+      :func:`axialmix.particles.scheduled_moves`); every step must keep the hold-ups
+      constant. Default: the network's own moves at every step.
 
     **Returns:** a :class:`SimulationResult`.
     """
@@ -513,6 +533,9 @@ def simulate(
         if numbers >= 1 << (63 - _kernels.species_bits(n_species)):
             raise ValueError("too many particles over the run for the identity engine.")
     schedule = check_feed_schedule(network, feed, steps, n_species)
+    if moves is not None:
+        moves = check_move_schedule(network, moves, steps)
+    table = move_table(network, moves)
     reports = _report_schedule(steps, report_every, report_steps)
     boundaries = np.union1d(reports, [] if tracer is None else [tracer.step])
     outflow = np.zeros((steps, n_species), np.int64)
@@ -520,7 +543,7 @@ def simulate(
     seed_generator(seed)
     engine_type = _CountEngine if engine == "count" else _IdentityEngine
     state = engine_type(
-        network, counts, tracked, seed, network.n_particles + network.throughput * steps
+        network, counts, tracked, seed, network.n_particles + network.throughput * steps, table
     )
 
     recorded_steps = [0]
@@ -571,4 +594,5 @@ def simulate(
         tracer=tracer,
         events=state.events(),
         wall_seconds=wall,
+        moves=None if moves is None else moves[:done],
     )
