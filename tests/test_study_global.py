@@ -75,7 +75,8 @@ def make_study(seed: int, speeds=(100.0, 200.0, 300.0), flows=(10.0, 20.0), repl
 def study():
     curves, factors = make_study(seed=1)
     first = fit_many(SPEC.curve_model, curves)
-    return curves, factors, first, global_fit(SPEC, curves, factors, first=first)
+    return curves, factors, first, global_fit(SPEC, curves, factors, first=first,
+                                              weights="per-curve")
 
 
 def test_global_fit_recovers_the_factor_law_within_its_intervals(study):
@@ -108,6 +109,21 @@ def test_one_by_one_fits_then_regression_give_wider_intervals(study):
     assert two_stage.dof == len(first) - 3
     for (low, high), (low2, high2) in zip(joint.ci95, two_stage.ci95, strict=True):
         assert high - low < high2 - low2
+
+
+def test_combined_weights_are_each_sample_s_error_model_from_its_curve_s_own_fit(study):
+    curves, factors, _, _ = study
+    first = fit_many(SPEC.curve_model, curves, errors="combined")
+    problem = global_problem(SPEC, curves, factors, first=first)  # "combined" by default
+    assert problem.weighting == "combined"
+    weights = problem.weights.reshape(len(curves), problem.length)
+    expected = []
+    for curve, result in zip(curves, first, strict=True):
+        sd = np.hypot(result.error_model.additive,
+                      result.error_model.proportional * np.asarray(result.predicted))
+        expected.append(np.concatenate([1 / sd**2, np.zeros(problem.length - len(curve))]))
+    expected = np.array(expected)
+    np.testing.assert_allclose(weights, expected / expected.max(), rtol=1e-12)
 
 
 def test_joint_jacobian_matches_finite_differences(study):
@@ -222,7 +238,8 @@ def test_global_fit_command_reads_a_long_table_and_gives_the_same_law(study, tmp
     curves, factors, _, result = study
     table = write_long_table(tmp_path / "study.csv", curves, factors)
     out, rows = tmp_path / "global.json", tmp_path / "curves.csv"
-    status = main(["global-fit", str(table), "--curve-column", "run", "--time-column", "time",
+    status = main(["global-fit", str(table), "--weights", "per-curve",
+                   "--curve-column", "run", "--time-column", "time",
                    "--value-column", "conc", "--law", "log(peclet)=speed+flow",
                    "--json", str(out), "--csv", str(rows)])
     assert status == 0
@@ -260,7 +277,7 @@ def test_law_text_of_the_command_line(text, parameter, terms, transform):
     (["run,time,value,speed", "a,1,0.1,100"], ["--law", "log(peclet)=speed", "--shared",
                                                "peclet"], "both shared and given"),
     (["run,time,value,speed", "a,2,0.1,100", "a,1,0.2,100"], ["--law", "log(peclet)=speed"],
-     "strictly increasing"),
+     "bad.csv:3: times not increasing"),
 ])
 def test_global_fit_command_refuses_bad_input_in_one_line(tmp_path, capsys, rows, options,
                                                           words):

@@ -31,11 +31,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     parser.add_argument("table", help="long-format CSV: curve id, time, signal, factor columns")
     parser.add_argument("--curve-column", required=True, help="the column naming each curve")
-    parser.add_argument("--time-column", default="time",
-                        help="the time column (default 'time'; a unit in the header such as "
-                             "'time_min' or 'time [min]' sets the time unit, else seconds)")
-    parser.add_argument("--value-column", default="value",
-                        help="the raw tracer signal column (default 'value')")
+    parser.add_argument("--time-column", default=None,
+                        help="the time column (recognised from the header as axialmix fit "
+                             "does; a unit in the header such as 'time_min' or 't [min]' sets "
+                             "the time unit, else seconds)")
+    parser.add_argument("--value-column", default=None,
+                        help="the raw tracer signal column (recognised from the header by "
+                             "default)")
+    parser.add_argument("--decimal", choices=("auto", ".", ","), default="auto",
+                        help="decimal mark of the table (default: detected)")
     parser.add_argument("--law", action="append", default=[], metavar="LAW",
                         help="a factor law, e.g. 'log(peclet)=speed+flow' (ln Pe linear in "
                              "the factor columns) or 'tau=flow' (tau itself linear); a term "
@@ -46,8 +50,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--free", default="",
                         help="measurement parameters fitted per curve besides the amplitude: "
                              "dead_time, baseline (comma-separated)")
-    parser.add_argument("--weights", choices=("per-curve", "equal"), default="per-curve",
-                        help="weigh each curve by its own noise level (default) or all equally")
+    parser.add_argument("--weights", choices=("combined", "per-curve", "equal"),
+                        default="combined",
+                        help="weigh each sample by its curve's additive plus proportional error "
+                             "model as axialmix fit estimates it (combined, the default), each "
+                             "curve by its own noise level (per-curve), or all equally")
     parser.add_argument("--json", metavar="OUT", help="write the result as JSON to OUT")
     parser.add_argument("--csv", metavar="OUT", help="write one row per curve to OUT")
     return parser
@@ -78,65 +85,28 @@ def parse_law(text: str):
     return FactorLaw(logged or plain, tuple(terms), "log" if transform else "identity")
 
 
-def _read_study(path, curve_column: str, time_column: str, value_column: str,
-                factor_columns: list[str]):
-    """Curves (in order of first appearance) and their factor columns from a long table."""
-    import numpy as np
+def _read_study(path, curve_column: str, time_column: str | None, value_column: str | None,
+                factor_columns: list[str], decimal: str = "auto"):
+    """Curves (in order of first appearance) and their numeric factor levels from a long
+    table, read as ``axialmix fit --curve-column`` reads it
+    (:func:`fitting.study.read_long_csv`)."""
+    from axialmix._csv import DataError
+    from fitting.study import read_long_csv
 
-    from axialmix._csv import DataError, read_table
-    from fitting.data import TIME_UNIT_SECONDS, Curve
-
-    table = read_table(path, header=True, suffix_units=tuple(TIME_UNIT_SECONDS))
-    curve_at = table.column(curve_column)
-    time_at = table.column(time_column)
-    value_at = table.column(value_column)
-    factor_at = [table.column(name) for name in factor_columns]
-    unit = time_at.unit or "s"
-    if unit not in TIME_UNIT_SECONDS:
-        raise table.error(f"time column {time_at.label!r}: unknown time unit {unit!r} "
-                          f"(known: {', '.join(TIME_UNIT_SECONDS)})")
-    rows: dict[str, list] = {}
-    levels: dict[str, list] = {}
-    first_row: dict[str, int] = {}
-
-    def number(cell: str, column, row: int) -> float:
-        try:
-            value = float(cell)
-        except ValueError:
-            raise DataError(table.path, f"{column.label!r} is not a number: {cell!r}",
-                            row) from None
-        if not np.isfinite(value):
-            raise DataError(table.path, f"{column.label!r} is not finite: {cell!r}", row)
-        return value
-
-    for row, cells in table.rows():
-        name = cells[curve_at.index].strip().strip('"')
-        if not name:
-            raise DataError(table.path, f"empty cell in column {curve_at.label!r}", row)
-        point = (number(cells[time_at.index], time_at, row),
-                 number(cells[value_at.index], value_at, row))
-        values = [number(cells[c.index], c, row) for c in factor_at]
-        if name not in rows:
-            rows[name], levels[name], first_row[name] = [], values, row
-        elif values != levels[name]:
-            changed = next(c.label for c, a, b in zip(factor_at, values, levels[name],
-                                                     strict=True) if a != b)
-            raise DataError(table.path, f"factor {changed!r} changes within curve {name!r} "
-                            f"(it must be constant within a curve)", row)
-        rows[name].append(point)
-    if not rows:
-        raise DataError(table.path, "no data rows under the header")
-    curves = []
-    for name, points in rows.items():
-        time, value = np.array(points).T
-        if time.size < 2 or not np.all(np.diff(time) > 0):
-            raise DataError(table.path, f"curve {name!r}: needs at least two samples at "
-                            "strictly increasing times", first_row[name])
-        curves.append(Curve(name, time, value, time_unit=unit, source=str(path),
-                            value_unit=value_at.unit))
-    factors = {column: [levels[name][j] for name in rows]
-               for j, column in enumerate(factor_columns)}
-    return curves, factors
+    study = read_long_csv(path, curve_column, time_column=time_column,
+                          value_column=value_column, factors=factor_columns, decimal=decimal)
+    factors = {}
+    for j, name in enumerate(study.factors):
+        column = []
+        for curve, row in zip(study.curves, study.levels, strict=True):
+            try:
+                column.append(float(row[j]))
+            except ValueError:
+                problem = (f"factor {name!r} of curve {curve.name!r} is not a number "
+                           f"({row[j]!r}): factor laws take numeric factors")
+                raise DataError(path, problem) from None
+        factors[name] = column
+    return list(study.curves), factors
 
 
 def _to_dict(result, two_stage) -> dict:
@@ -193,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
         return _exits.error_line(_COMMAND, str(error))
     try:
         curves, factors = _read_study(args.table, args.curve_column, args.time_column,
-                                      args.value_column, list(spec.factors))
+                                      args.value_column, list(spec.factors), args.decimal)
         result = global_fit(spec, curves, factors, weights=args.weights)
         two_stage = []
         for law in spec.laws:

@@ -22,19 +22,22 @@ How it is solved (:func:`global_fit`):
 1. **First stage.** Each curve is fitted alone (:func:`fitting.fit.fit_many`, one compiled
    solver for all of them). These fits give the starts (per-curve values; the median of a
    shared parameter; the least-squares regression of ``g(p_i)`` on the factors for a
-   law's coefficients) and, with ``weights="per-curve"`` (the default), each curve's noise
-   level ``s_i``.
-2. **Joint fit.** The stacked residuals ``sqrt(w_i) (A_i (E_i ⊗ u)(t) + b_i - c_i(t))``, with
-   ``w_i = 1 / s_i²`` (``"per-curve"``: curves of different noise count by their precision,
-   as in two-stage generalised least squares) or ``w_i = 1`` (``"equal"``: one noise size
-   for the whole study), are minimised by the project's compiled Levenberg–Marquardt solver
-   (:func:`fitting.solve.compiled_solver`, the program fits treat as one curve), and the
-   covariance is the Gauss–Newton one of :func:`fitting.uncertainty.gauss_newton_uncertainty`
-   over all free parameters: ``C = s² (Jᵀ W J)⁻¹``, ``s² = Σ w r² / ν``, intervals
-   ``± t(0.975, ν) · se`` with ``ν = N - p`` degrees of freedom (``N`` samples, ``p`` joint
-   parameters), less ``n_curves - 1`` with per-curve weights (their ratios were estimated
-   from the same data). Per-curve values that a law gives carry delta-method errors
-   (``se(g(p_i)) = sqrt(x_i C_c x_iᵀ)``, intervals back-transformed, so positive under ``ln``).
+   law's coefficients) and each curve's error model: with ``weights="combined"`` (the
+   default) its additive and proportional noise sizes ``a_i`` and ``b_i``, estimated as
+   ``axialmix fit`` estimates them; with ``"per-curve"`` its noise level ``s_i``.
+2. **Joint fit.** The stacked residuals ``sqrt(w_ij) (A_i (E_i ⊗ u)(t_ij) + b_i - c_ij)``, with
+   ``w_ij = 1 / (a_i² + (b_i m_ij)²)`` (``"combined"``, ``m_ij`` the first-stage model curve:
+   samples count by their precision within and across curves, as in two-stage generalised least
+   squares), ``w_ij = 1 / s_i²`` (``"per-curve"``) or ``w_ij = 1`` (``"equal"``: one noise size for
+   the whole study), are minimised by the project's compiled Levenberg–Marquardt solver
+   (:func:`fitting.solve.compiled_solver`, the program fits treat as one curve), and the covariance
+   is the Gauss–Newton one of :func:`fitting.uncertainty.gauss_newton_uncertainty` over all free
+   parameters: ``C = s² (Jᵀ W J)⁻¹``, ``s² = Σ w r² / ν``, intervals ``± t(0.975, ν) · se`` with
+   ``ν = N - p`` degrees of freedom (``N`` samples, ``p`` joint parameters), less the number of
+   estimated noise sizes minus one (``2 n_curves - 1`` with combined weights, ``n_curves - 1`` with
+   per-curve ones: estimated from the same data). Per-curve values that a law gives carry
+   delta-method errors (``se(g(p_i)) = sqrt(x_i C_c x_iᵀ)``, intervals back-transformed, so positive
+   under ``ln``).
 
 :func:`two_stage_law` is the usual alternative: fit curves one by one, then regress their
 fitted values on the factors; its intervals rest on the scatter of ``n_curves`` points
@@ -111,11 +114,13 @@ __all__ = [
 #: The transforms a factor law may apply to its parameter.
 LAW_TRANSFORMS = ("log", "identity")
 #: How the curves of a global fit are weighted against each other.
-WEIGHTINGS = ("per-curve", "equal")
+WEIGHTINGS = ("combined", "per-curve", "equal")
 #: Inlet signals a global fit supports (every curve gets the same kind).
 _INLETS = ("pulse", "step")
 #: How the report describes the curves' weights.
-_WEIGHTING_WORDS = {"per-curve": "by their own noise level (estimated)", "equal": "equally",
+_WEIGHTING_WORDS = {"combined": "by each sample's noise, a_i² + (b_i m)², both estimated "
+                                "from the curve's own fit",
+                    "per-curve": "by their own noise level (estimated)", "equal": "equally",
                     "given": "by the given weights"}
 #: Joint models kept per process (same structure: the same compiled solver).
 _CACHE_SIZE = 16
@@ -333,8 +338,8 @@ class GlobalProblem:
     - `start`: start values of `names`.
     - `time`, `observed`, `weights`: flattened padded data (zero weights on padding).
     - `length`: samples per curve after padding.
-    - `weighting`: ``"per-curve"``, ``"equal"`` or ``"given"``; `first`: the first-stage
-      fits.
+    - `weighting`: ``"combined"``, ``"per-curve"``, ``"equal"`` or ``"given"``; `first`: the
+      first-stage fits.
     """
 
     spec: GlobalModel
@@ -521,7 +526,7 @@ def global_problem(
     curves: Sequence[Curve | tuple],
     factors: Mapping[str, Sequence[float]] | None,
     first: Sequence[FitResult] | None = None,
-    weights: str | Sequence[float] = "per-curve",
+    weights: str | Sequence[float] = "combined",
 ) -> GlobalProblem:
     """The joint least-squares problem of a study (what :func:`global_fit` solves).
 
@@ -533,8 +538,12 @@ def global_problem(
     - `factors`: factor columns by name, one number per curve, in the order of `curves`
       (every column a law reads).
     - `first`: first-stage fits of the curves (:func:`fitting.fit.fit_many` with
-      ``spec.curve_model``, absolute errors), or ``None`` to run them here.
-    - `weights`: ``"per-curve"`` (weights ``1 / s_i²`` from the first-stage fits),
+      ``spec.curve_model``; combined errors for ``weights="combined"``, else absolute), or
+      ``None`` to run them here.
+    - `weights`: ``"combined"`` (default: each sample weighted by ``1 / (a_i² + (b_i m)²)``,
+      the additive plus proportional error model of curve ``i`` estimated by its own
+      first-stage fit, ``m`` that fit's model curve: the error model ``axialmix fit`` uses),
+      ``"per-curve"`` (weights ``1 / s_i²`` from the first-stage fits),
       ``"equal"`` (see the module docstring), or one known weight per curve (``1 / σ_i²``
       up to a common factor, e.g. from the detector's noise).
 
@@ -558,7 +567,8 @@ def global_problem(
         weights = "given"
     table = _factor_table(spec, factors, count)
     if first is None:
-        first = fit_many(spec.curve_model, curves)
+        first = fit_many(spec.curve_model, curves,
+                         errors="combined" if weights == "combined" else "absolute")
     first = tuple(first)
     if len(first) != count:
         raise ValueError(f"{len(first)} first-stage fits for {count} curves")
@@ -574,6 +584,15 @@ def global_problem(
         times.append(np.concatenate([curve.time, curve.time[-1] + step * np.arange(1, extra + 1)]))
         observed.append(np.concatenate([curve.value, np.zeros(extra)]))
         size = 1.0 if given is None else 1.0 / given[index]
+        if weights == "combined":
+            error = result.error_model
+            if error is None or not (error.additive > 0 or error.proportional > 0):
+                raise ValueError(f"curve {curve.name or index!r}: its own fit gives no error "
+                                 "model (fitted without combined errors, or an exact curve?); "
+                                 "use weights='equal'")
+            sd = error.standard_deviation(np.asarray(result.predicted, dtype=float))
+            point_weights.append(np.concatenate([1.0 / sd**2, np.zeros(extra)]))
+            continue
         if weights == "per-curve":
             size = float(result.sigma) ** 2
             if not (math.isfinite(size) and size > 0):
@@ -818,7 +837,7 @@ def global_fit(
     factors: Mapping[str, Sequence[float]] | None = None,
     *,
     first: Sequence[FitResult] | None = None,
-    weights: str | Sequence[float] = "per-curve",
+    weights: str | Sequence[float] = "combined",
     optimiser: Optimiser | None = None,
 ) -> GlobalFitResult:
     """Fit the curves of a study jointly: shared parameters and factor laws with one covariance.
@@ -834,8 +853,8 @@ def global_fit(
     - `factors`: factor columns by name, one number per curve (every column a law reads).
     - `first`: first-stage fits (:func:`fitting.fit.fit_many` with ``spec.curve_model``),
       or ``None`` to fit them here.
-    - `weights`: ``"per-curve"`` (default), ``"equal"``, or one known weight per curve
-      (see :func:`global_problem`).
+    - `weights`: ``"combined"`` (default), ``"per-curve"``, ``"equal"``, or one known weight
+      per curve (see :func:`global_problem`).
     - `optimiser`: settings of the solver (:class:`~fitting.solve.Optimiser`; default
       Levenberg–Marquardt).
 
@@ -865,12 +884,19 @@ def _result(problem: GlobalProblem, out: dict, status: Status, compile_time: flo
     uncertainty = gauss_newton_uncertainty(out["jacobian"], residual, weights)
     covariance, dof = uncertainty.covariance, uncertainty.dof
     all_stderr, sigma = uncertainty.all_stderr, uncertainty.sigma
-    if problem.weighting == "per-curve" and dof > count:
-        # The n_curves - 1 ratios of the curves' weights were estimated from residuals of
-        # the same data: one degree of freedom each (as for the estimated weight shape of
-        # the combined error model, fitting.fit).
-        factor = dof / (dof - (count - 1))
-        dof -= count - 1
+    # Weights estimated from residuals of the same data take one degree of freedom each,
+    # less one for their common scale (as for the estimated weight shape of the combined
+    # error model, fitting.fit): the n_curves - 1 ratios of per-curve weights; the additive
+    # and proportional sizes of each curve under combined weights.
+    estimated = 0
+    if problem.weighting == "per-curve":
+        estimated = count - 1
+    elif problem.weighting == "combined":
+        estimated = sum(2 if r.error_model.kind == "combined" else 1
+                        for r in problem.first) - 1
+    if estimated and dof > estimated + 1:
+        factor = dof / (dof - estimated)
+        dof -= estimated
         covariance, all_stderr, sigma = (covariance * factor, all_stderr * math.sqrt(factor),
                                          sigma * math.sqrt(factor))
     quantile = t_quantile(dof)
