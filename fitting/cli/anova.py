@@ -38,8 +38,31 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--ss-type", type=int, choices=(1, 2, 3), default=None,
                         help="sums of squares for unbalanced designs (default 2; balanced "
                              "designs give the same table with every type)")
+    parser.add_argument("--log", action="store_true",
+                        help="analyse the natural logarithm of the response (positive values; "
+                             "for responses such as Pe whose factor effects multiply)")
     parser.add_argument("--json", metavar="OUT", help="write the table as JSON to OUT")
     return parser
+
+
+def _logarithm(table: dict[str, list[str]], response: str) -> str:
+    """Add ``ln(response)`` to `table` (text cells, as read); its name. A cell that is not a
+    positive number is a one-line ``ValueError`` naming the run."""
+    import math
+
+    logged = []
+    for number, cell in enumerate(table[response], start=1):
+        try:
+            value = float(cell)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"--log: the response {response!r} of run {number} is "
+                             f"{cell!r}, not a positive number")
+        logged.append(repr(math.log(value)))
+    name = f"ln({response})"
+    table[name] = logged
+    return name
 
 
 def _names(text: str) -> list[str]:
@@ -62,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
             return _exits.error_line(_COMMAND, f"--json: folder {folder} does not exist")
     try:
         table = read_study_table(args.table, [args.response, *factors])
-        result = anova(table, args.response, factors, interactions=args.interactions,
+        response = _logarithm(table, args.response) if args.log else args.response
+        result = anova(table, response, factors, interactions=args.interactions,
                        numeric=_names(args.numeric), ss_type=args.ss_type)
     except DataError as error:
         return _exits.error_line(_COMMAND, error.compact())
