@@ -114,8 +114,8 @@ def test_design_table_gives_curve_files_their_factors(tmp_path):
     folder.mkdir()
     for name, _, _, tau, peclet, count in RUNS[:2]:
         t, c = _samples(tau, peclet, count)
-        (folder / f"{name}.csv").write_text(
-            "t [min],c\n" + "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(t, c, strict=True)))
+        rows = "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(t, c, strict=True))
+        (folder / f"{name}.csv").write_text("t [min],c\n" + rows)
     design = tmp_path / "design.csv"
     design.write_text("file,rpm,angle\nr2.csv,40,up\nr1,20,down\n")
     curves = [read_rtd_csv(folder / f"{r[0]}.csv", normalise=False) for r in RUNS[:2]]
