@@ -71,6 +71,30 @@ def test_unit_moments_equal_quadrature_of_exit_age(unit, upper):
     assert float(unit.variance()) == pytest.approx(second, rel=1e-8)
 
 
+def test_dead_zone_and_series_units_have_the_substituted_transfer_function_and_moments():
+    # MODELS.md §6: G(s) = G_cc(s (1 + beta k_d / (s + k_d))), mean (1 + beta) tau, variance
+    # (1 + beta)² v + 2 beta tau / k_d; an ADM then a tank multiplies G by 1 / (1 + s tau_t).
+    tau, peclet, beta, k_d, tank = 3.0, 12.0, 0.4, 0.25, 0.8
+    adm = Unit.closed_closed(tau, peclet)
+    s = np.array([0.05, 0.3 + 0.2j, 1.5j])
+    dead = Unit.closed_closed_exchange(tau, peclet, beta, k_d)
+    substituted = s * (1 + beta * k_d / (s + k_d))
+    np.testing.assert_allclose(dead.transfer_function(s), adm.transfer_function(substituted),
+                               rtol=1e-12)
+    assert float(dead.mean()) == pytest.approx((1 + beta) * tau, rel=1e-12)
+    assert float(dead.variance()) == pytest.approx(
+        (1 + beta) ** 2 * float(adm.variance()) + 2 * beta * tau / k_d, rel=1e-12)
+    gamma = Unit.tanks(tau, 2.5)
+    dead_tanks = Unit.tanks_exchange(tau, 2.5, beta, k_d)
+    np.testing.assert_allclose(dead_tanks.transfer_function(s),
+                               gamma.transfer_function(substituted), rtol=1e-12)
+    series = Unit.closed_closed_tank(tau, peclet, tank)
+    np.testing.assert_allclose(series.transfer_function(s),
+                               adm.transfer_function(s) / (1 + s * tank), rtol=1e-12)
+    assert float(series.mean()) == pytest.approx(tau + tank, rel=1e-12)
+    assert float(series.variance()) == pytest.approx(float(adm.variance()) + tank**2, rel=1e-12)
+
+
 def test_moments_from_transfer_function_match_the_closed_forms():
     # A model that gives only E, F and G: its moments come from G'(0) and G''(0).
     bare = Unit.from_model(
