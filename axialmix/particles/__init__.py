@@ -32,7 +32,7 @@ from axialmix.particles.sampling import (
     species_fraction,
     variance_reduction_ratio,
 )
-from axialmix.particles.schedule import check_move_schedule, move_table, scheduled_moves
+from axialmix.particles.schedule import check_move_schedule, scheduled_moves
 from axialmix.particles.simulate import (
     ENGINES,
     MAX_SEED,
@@ -59,7 +59,6 @@ __all__ = [
     "exit_age_from_outflow",
     "feeder_feed",
     "memory_estimate",
-    "move_table",
     "four_compartment",
     "particle_axial_radial_grid",
     "particle_four_compartment",

@@ -18,7 +18,7 @@ import numpy as np
 
 from axialmix.particles.description import ParticleNetwork, _rebalance
 
-__all__ = ["check_move_schedule", "move_table", "scheduled_moves"]
+__all__ = ["check_move_schedule", "scheduled_moves"]
 
 _BALANCE_TOLERANCE = 1e-6
 
@@ -86,7 +86,7 @@ def check_move_schedule(network: ParticleNetwork, moves, steps: int) -> np.ndarr
     return np.ascontiguousarray(moves)
 
 
-def move_table(network: ParticleNetwork, moves: np.ndarray | None):
+def _move_table(network: ParticleNetwork, moves: np.ndarray | None):
     """The engines' move table: ``(start, destination, count, handed_out)``.
 
     Moves grouped by source compartment as in :meth:`ParticleNetwork.outgoing_table`, with

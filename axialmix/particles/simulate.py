@@ -31,7 +31,7 @@ from axialmix.particles import _kernels
 from axialmix.particles._random import seed_generator, xoshiro_state
 from axialmix.particles.description import ParticleNetwork
 from axialmix.particles.feed import check_feed_schedule
-from axialmix.particles.schedule import check_move_schedule, move_table
+from axialmix.particles.schedule import _move_table, check_move_schedule
 
 __all__ = [
     "ENGINES",
@@ -535,7 +535,7 @@ def simulate(
     schedule = check_feed_schedule(network, feed, steps, n_species)
     if moves is not None:
         moves = check_move_schedule(network, moves, steps)
-    table = move_table(network, moves)
+    table = _move_table(network, moves)
     reports = _report_schedule(steps, report_every, report_steps)
     boundaries = np.union1d(reports, [] if tracer is None else [tracer.step])
     outflow = np.zeros((steps, n_species), np.int64)
