@@ -240,6 +240,8 @@ BAD = [
       "--disturbance", "step:magnitude=1", "--coverage", "1.5"], "--coverage"),
     (["divert", "--model", "tanks", "--set", "tau=1", "--set", "n_tanks=2",
       "--trace", "{trace}"], "does not increase"),
+    (["divert", "--model", "tanks", "--set", "tau=1", "--set", "n_tanks=2",
+      "--trace", "{minutes}"], "times are in min, the RTD in s"),
 ]
 
 
@@ -250,9 +252,11 @@ def test_bad_input_exits_2_on_one_line_and_writes_nothing(argv, words, tmp_path,
     network.write_text(json.dumps({"compartments": ["A", "B"]}))
     trace = tmp_path / "trace.csv"
     trace.write_text("time,content\n0,100\n5,101\n5,102\n")
+    minutes = tmp_path / "minutes.csv"
+    minutes.write_text("time (min),content (%)\n0,100\n5,101\n")
     out = tmp_path / "out.json"
-    argv = [a.format(fit=fit, network=network, trace=trace) for a in argv] + ["--json",
-                                                                                str(out)]
+    argv = [a.format(fit=fit, network=network, trace=trace, minutes=minutes) for a in argv] + [
+        "--json", str(out)]
     status, _, err = _run(argv, capsys)
     assert status == 2
     lines = err.strip().splitlines()

@@ -145,7 +145,7 @@ def _read_trace(path: str):
     if (steps <= 0).any():
         k = int(np.argmax(steps <= 0)) + 1
         raise OptionError(f"{path}:{rows[k]}: time {values[k, 0]:g} does not increase")
-    return values[:, 0], values[:, 1]
+    return values[:, 0], values[:, 1], table.columns[0].unit
 
 
 def _limits(args) -> tuple[float, float]:
@@ -204,6 +204,9 @@ def run(args: argparse.Namespace) -> int:
         spec = _disturbance_spec(args.disturbance) if args.disturbance is not None else None
         trace = _read_trace(args.trace) if args.trace is not None else None
         fitted, description = rtd_from_options(args)
+        if trace is not None and trace[2] not in (None, fitted.time_unit):
+            raise OptionError(f"{args.trace}: times are in {trace[2]}, the RTD in "
+                              f"{fitted.time_unit}")
         if args.flow is not None:
             from fitting.data import seconds_per
 
@@ -235,7 +238,7 @@ def run(args: argparse.Namespace) -> int:
         last = first + values.get("duration", 0.0)
         disturbance_record = {"kind": kind, **values}
     else:
-        trace_times, contents = trace
+        trace_times, contents, _ = trace
         disturbance = Disturbance.trace(trace_times, contents - args.target, **units)
         first, last = float(trace_times[0]), float(trace_times[-1])
         disturbance_record = {"kind": "trace", "file": args.trace, "samples": int(contents.size)}
