@@ -38,14 +38,14 @@ def _run(argv, capsys):
     return status, captured.out, captured.err
 
 
-def _fit_record(tmp_path, model="adm", values=None, time_unit="min"):
+def _fit_record(tmp_path, model="adm", values=None, time_unit="min", data="run 7"):
     """A fit record in the layout of ``axialmix fit`` (measurement model parameters included,
     dead time fixed): standard errors 4 % and 12 % of the two model parameters."""
     values = values or {"tau": 2.0, "peclet": 25.0}
     (first, second), (a, b) = values.items(), (0.04, 0.12)
     record = {
         "model": model,
-        "data": "run 7",
+        "data": data,
         "time_unit": time_unit,
         "parameters": {
             first[0]: {"value": first[1], "stderr": a * first[1], "vary": True, "expr": None},
@@ -65,8 +65,9 @@ def _fit_record(tmp_path, model="adm", values=None, time_unit="min"):
 def test_funnel_command_of_a_stirred_tank_is_its_closed_form(tmp_path, capsys):
     out, png = tmp_path / "funnel.json", tmp_path / "funnel.png"
     status, text, _ = _run(["funnel", "--model", "tanks", "--set", f"tau={TAU}", "--set",
-                            "n_tanks=1", "--durations", "1,5,20", "--magnitudes", "5,-10",
-                            "--json", str(out), "--png", str(png)], capsys)
+                            "n_tanks=1", "--time-unit", "min", "--durations", "1,5,20",
+                            "--magnitudes", "5,-10", "--json", str(out), "--png", str(png)],
+                           capsys)
     assert status == 0
     assert "rows magnitudes" in text
     record = json.loads(out.read_text())
@@ -75,14 +76,15 @@ def test_funnel_command_of_a_stirred_tank_is_its_closed_form(tmp_path, capsys):
     np.testing.assert_allclose(record["max_deviation"], expected, rtol=1e-12)
     assert record["durations"] == durations.tolist()
     assert record["magnitudes"] == magnitudes.tolist()
-    assert (record["time_unit"], record["magnitude_unit"]) == ("s", "%")
+    assert (record["time_unit"], record["magnitude_unit"]) == ("min", "%")
     assert (record["rows"], record["columns"]) == ("magnitudes", "durations")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_funnel_command_from_a_fit_uses_its_values_and_time_unit(tmp_path, capsys):
-    # The same compiled funnel as above (tanks, three durations, two magnitudes).
-    path, _ = _fit_record(tmp_path, "tanks", {"tau": 4.0, "n_tanks": 1.0})
+    # The same compiled funnel as above (tanks in minutes, labelled "tanks", three durations,
+    # two magnitudes).
+    path, _ = _fit_record(tmp_path, "tanks", {"tau": 4.0, "n_tanks": 1.0}, data="tanks")
     out = tmp_path / "funnel.json"
     status, _, _ = _run(["funnel", "--model", str(path), "--durations", "0.5,3,9",
                          "--magnitudes", "10,1", "--json", str(out)], capsys)
