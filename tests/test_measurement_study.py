@@ -6,7 +6,8 @@
   the exact E); the inlet file holds the pulse with 2 % noise. With ``--inlet`` the fit's
   95 % intervals hold tau and Pe; treating the pulse as ideal is biased.
 * A constant background of 10 % of the peak: with ``--free baseline`` tau and Pe lie within
-  the intervals of the fit of the same curve without the background.
+  the intervals of the fit of the same curve without the background; left at 0, the
+  lack-of-fit verdict fires.
 
 The exact outlet takes minutes to compile, hence opt-in.
 """
@@ -32,10 +33,14 @@ def _write(path, time, values, header="time_s,concentration"):
     return path
 
 
-def _fit(tmp_path, path, *options):
+def _record(tmp_path, path, *options):
     out = tmp_path / f"out{len(list(tmp_path.iterdir()))}"
     assert main(["fit", str(path), *options, "--out", str(out)]) == 0
-    return json.loads((out / f"{path.stem}.json").read_text())["parameters"]
+    return json.loads((out / f"{path.stem}.json").read_text())
+
+
+def _fit(tmp_path, path, *options):
+    return _record(tmp_path, path, *options)["parameters"]
 
 
 def _inside(parameters, name, value):
@@ -75,14 +80,19 @@ def test_freed_baseline_under_a_background_agrees_with_the_background_free_fit(t
     noise = np.hypot(0.005 * clean.max(), 0.02 * clean) * rng.standard_normal(time.size)
     plain = _fit(tmp_path, _write(tmp_path / "plain.csv", time, clean + noise))
     background = _write(tmp_path / "background.csv", time, clean + noise + 0.1 * clean.max())
-    freed = _fit(tmp_path, background, "--free", "baseline")
-    ignored = _fit(tmp_path, background)
+    freed_record = _record(tmp_path, background, "--free", "baseline")
+    ignored_record = _record(tmp_path, background)
+    freed, ignored = freed_record["parameters"], ignored_record["parameters"]
     capsys.readouterr()
     print(f"background-free: tau {plain['tau']['value']:.3f} {plain['tau']['ci95']}, Pe "
           f"{plain['peclet']['value']:.3f} {plain['peclet']['ci95']}; baseline freed: tau "
           f"{freed['tau']['value']:.3f}, Pe {freed['peclet']['value']:.3f}, b "
           f"{freed['baseline']['value']:.4g} (true {0.1 * clean.max():.4g}); baseline 0: tau "
           f"{ignored['tau']['value']:.3f}, Pe {ignored['peclet']['value']:.3f}")
+    print(f"lack of fit, baseline freed: {freed_record['lack_of_fit']['statement']}")
+    print(f"lack of fit, baseline 0: {ignored_record['lack_of_fit']['statement']}")
+    assert ignored_record["lack_of_fit"]["systematic"]
+    assert not freed_record["lack_of_fit"]["systematic"]
     for name in ("tau", "peclet"):
         assert _inside(plain, name, freed[name]["value"]), name
         assert not _inside(plain, name, ignored[name]["value"]), name
