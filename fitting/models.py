@@ -98,6 +98,7 @@ from axialmix.network import (
     cumulative_exit_age,
     four_compartment_exit_age,
     moment_matched_adm,
+    moment_matched_adm_from_moments,
     residence_time_moments,
 )
 from axialmix.network import exit_age as _network_exit_age
@@ -692,7 +693,29 @@ def _four_compartment_guess(curve: Curve) -> dict[str, float]:
 def _four_compartment_unit_mean() -> float:
     """The four-compartment network's mean residence time with every rate 1 (1/rate unit),
     computed once a process (start values ask for it many times a fit)."""
-    return float(residence_time_moments(_four_compartment_network(1.0, 1.0, 1.0, 1.0)).mean)
+    return _four_compartment_moments(dict.fromkeys(FOUR_COMPARTMENT_NAMES, 1.0))[0]
+
+
+@functools.cache
+def _four_compartment_moments_program() -> Callable:
+    """:func:`axialmix.network.residence_time_moments` of the 2 × 2 network as one compiled
+    program of its rates (one trace a process, instead of dozens of eager operations each
+    time start values or an equivalent ADM are asked for)."""
+    network = _four_compartment_network(1.0, 1.0, 1.0, 1.0)
+
+    def moments(rates, outflow):
+        result = residence_time_moments(network, rates, outflow)
+        return result.mean, result.variance
+
+    return jax.jit(moments)
+
+
+def _four_compartment_moments(values: Mapping[str, float]) -> tuple[float, float]:
+    """Mean residence time and variance of the four-compartment network with rates `values`."""
+    rates = np.array([values[rate] for _, _, rate in FOUR_COMPARTMENT_CONNECTIONS], float)
+    outflow = np.array([values["k_out"]], float)
+    mean, variance = _four_compartment_moments_program()(rates, outflow)
+    return float(mean), float(variance)
 
 
 def _four_compartment_function(t, p):
@@ -720,8 +743,9 @@ def _four_compartment_unit(p):
 
 def _four_compartment_equivalent(values: Mapping[str, float], length: float | None,
                                  time_unit: str) -> dict[str, Any]:
-    network = _four_compartment_network(*(float(values[n]) for n in FOUR_COMPARTMENT_NAMES))
-    return moment_matched_adm(network, length, time_unit=time_unit).as_dict()
+    mean, variance = _four_compartment_moments(values)
+    return moment_matched_adm_from_moments(mean, variance, length,
+                                           time_unit=time_unit).as_dict()
 
 
 def _mirror_statements(values: Mapping[str, float],

@@ -23,6 +23,7 @@ from ._equivalent import (
     equivalent_adm,
     four_compartment_chain_transport,
     moment_matched_adm,
+    moment_matched_adm_from_moments,
     peclet_from_variance_ratio,
 )
 from ._four_compartment import (
@@ -95,6 +96,7 @@ __all__ = [
     "generator_matrix",
     "loading_amounts",
     "moment_matched_adm",
+    "moment_matched_adm_from_moments",
     "outlet_response",
     "peclet_from_variance_ratio",
     "residence_time_moments",

@@ -116,15 +116,31 @@ def moment_matched_adm(
     :class:`MomentMatchedADM` (``tau``, ``sigma²``, ``sigma²/tau²``, ``Pe`` in the time
     unit; ``v`` in m/s and ``D_z`` in m²/s).
     """
+    moments = residence_time_moments(network, rates, outflow_rates)
+    return moment_matched_adm_from_moments(moments.mean, moments.variance, length,
+                                           time_unit=time_unit)
+
+
+def moment_matched_adm_from_moments(mean: float, variance: float, length: float | None, *,
+                                    time_unit: str = "s") -> MomentMatchedADM:
+    """The closed–closed ADM with a given mean residence time and variance.
+
+    What :func:`moment_matched_adm` does once it has the network's moments (for callers that
+    compute the moments themselves, e.g. in one compiled program for many rate sets).
+
+    **Arguments:** `mean` (time unit) and `variance` (time unit²) of the residence time;
+    `length` and `time_unit` as in :func:`moment_matched_adm`.
+
+    **Returns:** :class:`MomentMatchedADM`.
+    """
     if time_unit not in TIME_UNITS:
         raise ValueError(f"time_unit must be one of {sorted(TIME_UNITS)}, got {time_unit!r}.")
     if length is not None:
         length = float(length)
         if not (math.isfinite(length) and length > 0):
             raise ValueError(f"length must be positive and finite (m), got {length}.")
-    moments = residence_time_moments(network, rates, outflow_rates)
-    tau = float(moments.mean)
-    variance = float(moments.variance)
+    tau = float(mean)
+    variance = float(variance)
     ratio = variance / tau**2
     peclet = float(_peclet_from_ratio(ratio))
     velocity = dispersion = None

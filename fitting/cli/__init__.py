@@ -171,6 +171,41 @@ def _chosen(argv: list[str]) -> str | None:
     return None
 
 
+class _PipeSafe:
+    """A text stream that goes quiet when its reader has gone (``axialmix fit ... | head``).
+
+    Writing to a pipe whose reader has closed raises BrokenPipeError; the run still has
+    results to finish and write, so from then on its output goes to the null device (the
+    file descriptor too, for the interpreter's last flush) and the work goes on.
+    """
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._silence()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._silence()
+
+    def _silence(self) -> None:
+        with contextlib.suppress(OSError, ValueError):
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, self._stream.fileno())
+            os.close(null)
+        self._stream = open(os.devnull, "w")  # noqa: SIM115  (lives as long as the process)
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the process exit status.
 
@@ -184,6 +219,8 @@ def main(argv: list[str] | None = None) -> int:
     meet compiled JAX work being torn down) although its results are complete.
     """
     program = argv is None
+    if program:
+        sys.stdout, sys.stderr = _PipeSafe(sys.stdout), _PipeSafe(sys.stderr)
     argv = sys.argv[1:] if argv is None else list(argv)
     command = _chosen(argv)
     in_main = threading.current_thread() is threading.main_thread()
