@@ -121,6 +121,15 @@ EXCHANGE_CASES = [
     (100.0, 0.5, 100.0),
     (0.1, 5.0, 0.01),
     (0.1, 0.2, 100.0),
+    # A nearly empty dead zone at high Pe: E came out 1.09e6 instead of 4.57 at theta 1.05
+    # (1.2e5 of the peak, no AccuracyWarning); Pe 300 gives 34 of the peak; k_d tau = 10 and
+    # 100, or beta = 1e-3, are right.
+    pytest.param(
+        1000.0,
+        1e-6,
+        30.0,
+        marks=pytest.mark.xfail(strict=True, reason="slow-exchange split wrong for tiny beta"),
+    ),
 ]
 
 
@@ -133,8 +142,8 @@ def test_exchange_exit_age_matches_subordination_integral(peclet, beta, kappa):
     print(
         f"Pe={peclet:g} beta={beta:g} k_d tau={kappa:g}: max|E - E_ref| = {error:.1e} of the peak"
     )
-    # Required: 1e-6 of the peak. Measured 1e-12 or better except at intermediate exchange and
-    # high Pe (k_d tau = 30, Pe = 1000: 1e-13 here, up to 1e-8 in the study below).
+    # Required: 1e-6 of the peak. Measured 1.4e-10 or better on the cases above (the study
+    # below finds the failing case marked xfail).
     assert error <= 1e-8
 
 
