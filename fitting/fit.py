@@ -645,20 +645,7 @@ def _with_estimated_weight_shape(result: FitResult) -> FitResult:
     """
     if result.loss_name != "sse" or result.dof <= 1:
         return result
-    dof = result.dof - 1
-    factor = math.sqrt(result.dof / dof)
-    quantile = t_quantile(dof)
-    stderr, ci95 = {}, {}
-    for name, error in result.stderr.items():
-        if error is None:
-            stderr[name], ci95[name] = None, None
-            continue
-        stderr[name] = error * factor
-        ci95[name] = interval(result.values[name], quantile * stderr[name],
-                               result.init_params[name])
-    return dataclasses.replace(result, stderr=stderr, ci95=ci95,
-                               covariance=result.covariance * factor**2,
-                               sigma=result.sigma * factor, dof=dof)
+    return _with_degrees_of_freedom(result, result.dof - 1)
 
 
 def _with_effective_dof(result: FitResult) -> FitResult:
@@ -678,6 +665,12 @@ def _with_effective_dof(result: FitResult) -> FitResult:
                                        result.weights * model_size**2)
     if not (math.isfinite(dof) and dof > 0):
         return result
+    return _with_degrees_of_freedom(result, dof)
+
+
+def _with_degrees_of_freedom(result: FitResult, dof: float) -> FitResult:
+    """`result` with ``s² = Σ w r² / dof``: standard errors, covariance and ``s`` rescaled by
+    ``sqrt(result.dof / dof)``, intervals from the Student t of `dof` degrees of freedom."""
     factor = math.sqrt(result.dof / dof)
     quantile = t_quantile(dof)
     stderr, ci95 = {}, {}

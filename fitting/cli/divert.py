@@ -40,6 +40,7 @@ from fitting.cli.funnel import (
     check_output,
     numbers,
     rtd_from_options,
+    write_plot_png,
 )
 
 __all__ = ["DISTURBANCES", "add_parser", "run"]
@@ -301,24 +302,8 @@ def run(args: argparse.Namespace) -> int:
                                       "scale": scale, "seed": args.seed}
         write_json(args.json, record)
     if args.png is not None:
-        _write_png(args.png, conservative if conservative is not None else nominal)
+        from axialmix.line import plot_diversion
+
+        window = conservative if conservative is not None else nominal
+        write_plot_png(args.png, lambda ax: plot_diversion(window, ax=ax), (7, 4))
     return _exits.OK
-
-
-def _write_png(path: str, window) -> None:
-    import io
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from axialmix._files import write_atomic
-    from axialmix.line import plot_diversion
-
-    figure, ax = plt.subplots(figsize=(7, 4))
-    plot_diversion(window, ax=ax)
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=100)
-    plt.close(figure)
-    write_atomic(path, lambda stream: stream.write(buffer.getvalue()), binary=True)

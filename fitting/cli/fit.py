@@ -618,7 +618,36 @@ def _registered() -> tuple[str, ...]:
     return tuple(MODELS)
 
 
-class _StudyExecution:
+class _Supervised:
+    """Work on a worker thread while the main thread waits for it: Ctrl-C (:meth:`_interrupt`,
+    installed by the subclass) sets `stop`, and the main thread then calls ``_leave``, which
+    saves what is finished and ends the process. Subclasses set `stop`, `failure`, `status`
+    and define ``_work`` and ``_leave``."""
+
+    stop: threading.Event
+    failure: BaseException | None
+    status: int
+
+    def _interrupt(self, signum, frame) -> None:
+        self.stop.set()
+
+    def _supervise(self, name: str) -> None:
+        """Run ``_work`` on a thread named `name` and wait for it, leaving on Ctrl-C."""
+        worker = threading.Thread(target=self._work, name=name, daemon=True)
+        worker.start()
+        while worker.is_alive():
+            worker.join(0.1)
+            if self.stop.is_set():
+                self._leave()
+
+    def _outcome(self) -> int:
+        """The exit status of the finished work (its exception raised again, if any)."""
+        if self.failure is not None:
+            raise self.failure
+        return self.status
+
+
+class _StudyExecution(_Supervised):
     """A study run in a worker thread, Ctrl-C in the main thread (as :class:`_Run`); the
     output folder's `lock` is held already and released at the end."""
 
@@ -632,22 +661,12 @@ class _StudyExecution:
         in_main = threading.current_thread() is threading.main_thread()
         previous = signal.signal(signal.SIGINT, self._interrupt) if in_main else None
         try:
-            worker = threading.Thread(target=self._work, name="axialmix-study", daemon=True)
-            worker.start()
-            while worker.is_alive():
-                worker.join(0.1)
-                if self.stop.is_set():
-                    self._leave()
+            self._supervise("axialmix-study")
         finally:
             self.lock.release()
             if in_main:
                 signal.signal(signal.SIGINT, previous)
-        if self.failure is not None:
-            raise self.failure
-        return self.status
-
-    def _interrupt(self, signum, frame) -> None:
-        self.stop.set()
+        return self._outcome()
 
     def _leave(self) -> None:
         """After Ctrl-C: the summary of the finished curves (the journal holds them already),
@@ -753,7 +772,7 @@ def run(args: argparse.Namespace) -> int:
     return run.execute()
 
 
-class _Run:
+class _Run(_Supervised):
     """One ``axialmix fit`` run after validation: fits in a worker thread, Ctrl-C in the main."""
 
     def __init__(self, model, curves, files, settings, args, starts, out: Path):
@@ -785,22 +804,12 @@ class _Run:
             except OSError as error:
                 return error_line("fit", f"{self.out}: --out cannot be created "
                                   f"({error.strerror})")
-            worker = threading.Thread(target=self._work, name="axialmix-fit", daemon=True)
-            worker.start()
-            while worker.is_alive():
-                worker.join(0.1)
-                if self.stop.is_set():
-                    self._leave()
+            self._supervise("axialmix-fit")
         finally:
             self.lock.release()
             if in_main:
                 signal.signal(signal.SIGINT, previous)
-        if self.failure is not None:
-            raise self.failure
-        return self.status
-
-    def _interrupt(self, signum, frame) -> None:
-        self.stop.set()
+        return self._outcome()
 
     def _leave(self) -> None:
         """After Ctrl-C: let the worker finish the files of a curve it is writing (written

@@ -39,6 +39,7 @@ __all__ = [
     "numbers",
     "rtd_from_options",
     "run",
+    "write_plot_png",
 ]
 
 _COMMAND = "funnel"
@@ -327,11 +328,15 @@ def run(args: argparse.Namespace) -> int:
             "columns": "durations",
         })
     if args.png is not None:
-        _write_png(args.png, result)
+        from axialmix.line import plot_funnel
+
+        write_plot_png(args.png, lambda ax: plot_funnel(result, ax=ax), (6, 4))
     return _exits.OK
 
 
-def _write_png(path: str, result) -> None:
+def write_plot_png(path: str, draw, size: tuple[float, float]) -> None:
+    """Draw one plot with `draw(ax)` on a figure of `size` inches and write it as a PNG to
+    `path` atomically (matplotlib is imported here, only when a plot is asked for)."""
     import io
 
     import matplotlib
@@ -340,10 +345,9 @@ def _write_png(path: str, result) -> None:
     import matplotlib.pyplot as plt
 
     from axialmix._files import write_atomic
-    from axialmix.line import plot_funnel
 
-    figure, ax = plt.subplots(figsize=(6, 4))
-    plot_funnel(result, ax=ax)
+    figure, ax = plt.subplots(figsize=size)
+    draw(ax)
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=100)
     plt.close(figure)
