@@ -643,7 +643,7 @@ def render_fit_png(result: FitResult, grid: GridResult | None = None) -> bytes:
     curve = normalised(result.values)
     # Fixed margins: a constrained layout costs about 0.15 s a figure, half the drawing time.
     figure = Figure(figsize=(7, 6))
-    figure.subplots_adjust(left=0.16, right=0.97, top=0.95, bottom=0.08, hspace=0.06)
+    figure.subplots_adjust(left=0.16, right=0.97, top=0.95, bottom=0.08, hspace=0.12)
     top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[3, 1.3])
     top.plot(time, observed, "o", color="black", label=f"data{note}",
              markersize=6 if not note else 2)
