@@ -213,6 +213,8 @@ def leverages(jacobian: np.ndarray, weights: np.ndarray) -> np.ndarray:
 #: Range of the proportional share ``f`` searched, in ``logit f``: up to ``1 - f = 4e-18``,
 #: so an absent additive part is found as (numerically) zero, never exactly zero.
 _LOGIT_RANGE = 40.0
+#: Most numbers held at once by the grid search of the combined error sizes.
+_GRID_BLOCK = 1 << 20
 
 
 def estimate_combined_errors(residual: np.ndarray, model_values: np.ndarray,
@@ -259,11 +261,17 @@ def estimate_combined_errors(residual: np.ndarray, model_values: np.ndarray,
         return float(np.sum(np.log(g)) + squared.size * math.log(np.mean(squared / g)))
 
     grid = np.linspace(-_LOGIT_RANGE, _LOGIT_RANGE, 161)
-    # The same likelihood on the whole grid at once (one array operation, not 161 calls).
-    additive_share = 1.0 / (1.0 + np.exp(grid))[:, None]
-    proportional_share = 1.0 / (1.0 + np.exp(-grid))[:, None]
-    g = additive_share + proportional_share * relative[None, :]
-    values = np.sum(np.log(g), axis=1) + squared.size * np.log(np.mean(squared / g, axis=1))
+    # The same likelihood on many grid points at once (array operations, not 161 calls), in
+    # blocks of at most _GRID_BLOCK numbers so that a curve of a million samples stays small.
+    values = np.empty(grid.size)
+    rows = max(1, _GRID_BLOCK // max(relative.size, 1))
+    for start in range(0, grid.size, rows):
+        logits = grid[start:start + rows]
+        additive_share = 1.0 / (1.0 + np.exp(logits))[:, None]
+        proportional_share = 1.0 / (1.0 + np.exp(-logits))[:, None]
+        g = additive_share + proportional_share * relative[None, :]
+        values[start:start + rows] = (np.sum(np.log(g), axis=1)
+                                      + squared.size * np.log(np.mean(squared / g, axis=1)))
     best = int(np.argmin(values))
     low, high = grid[max(best - 1, 0)], grid[min(best + 1, grid.size - 1)]
     logit = grid[best]
