@@ -80,7 +80,8 @@ _CIRCLE_RATIO = 1.5
 # The split is used when the rest of the singularities are farther than this many rho from -k_d
 # and the cluster itself is within rho / this.
 _SEPARATION = 3.0
-# Largest log |G| on the split's circles for which the split is used.
+# Largest cost (log of the rounding the split adds, relative to the curve; see
+# invert_with_dead_zone) for which the split is used.
 _CIRCLE_SIZE = 12.0
 # Scaled distance (Gaussian widths) from the mobile parabola to the cluster below which G_N is
 # inverted on its own contour.
@@ -422,19 +423,26 @@ def invert_with_dead_zone(
     """
     safe_radius = jnp.where(radius > 0, radius, 1.0)
     cluster = _Cluster(center, safe_radius)
-    # The split costs digits in proportion to G on its circles (s' near (β-1) k_d ± 0.83
-    # sqrt(β) k_d, where G ~ e^{|s'| tau}): beyond e^12 the single contour is better.
+    fixed_mean = jax.lax.stop_gradient(mean)
+    # The split's coefficients carry rounding of the size of G on its circles, e^{circle_size}
+    # (s' near (β-1) k_d ± 0.83 sqrt(β) k_d, where G ~ e^{|s'| tau}); beyond a cost of e^12
+    # the single contour is taken.
+    # In E that error is multiplied by |e^{s t}| near the cluster, at most e^{(c + r rho) t}
+    # (c + r rho < 0 for a small dead zone), and the split is used from about the mean on:
+    # so the cost is circle_size - |c + r rho| mean. The step and ramp forms also take G_F(0)
+    # from the principal part, whose error e^{s t} does not damp: their cost is circle_size.
     circle_size = jnp.max(jnp.real(surrogate_fixed(cluster.points, False)))
+    damping = jnp.minimum(center + _CIRCLE_RATIO * safe_radius, 0.0) * fixed_mean
+    split_cost = circle_size + (damping if power == 0 else 0.0)
     separated = (
         (radius > 0)
         & (far_singularity < center - _SEPARATION * safe_radius)
         & (near_singularity - center < safe_radius / _SEPARATION)
-        & (circle_size < _CIRCLE_SIZE)
+        & (split_cost < _CIRCLE_SIZE)
     )
     focus = jnp.where(separated, far_singularity, singularity)
     column = theta[..., None]
     near_rate = 1.0 / jnp.abs(center)
-    fixed_mean = jax.lax.stop_gradient(mean)
 
     def split_here(parabola):
         """Where the mobile parabola does not pass well right of the cluster."""
