@@ -635,7 +635,7 @@ def render_fit_png(result: FitResult, grid: GridResult | None = None) -> bytes:
     model = result.model
 
     def normalised(values):
-        curve = np.asarray(model(fine, {n: values[n] for n in model.parameter_names}), float)
+        curve = model.evaluate(fine, values)
         if isinstance(model, MeasuredModel):
             curve = (curve - float(values["baseline"])) / float(values["amplitude"])
         return _plottable(curve)

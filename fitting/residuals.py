@@ -40,7 +40,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special
+
+from fitting.distributions import chi_square_survival, log_factorials
 
 __all__ = [
     "LACK_OF_FIT_LEVEL",
@@ -70,11 +71,14 @@ class RunsTest:
     p: float
 
 
-def _log_binomial(n: np.ndarray, k: np.ndarray) -> np.ndarray:
-    n = np.asarray(n, float)
-    k = np.asarray(k, float)
+def _log_binomial(table: np.ndarray, n, k) -> np.ndarray:
+    """``ln C(n, k)`` from a table of ``ln m!`` (``-inf`` where k is outside 0..n)."""
+    n = np.asarray(n)
+    k = np.asarray(k)
     valid = (k >= 0) & (k <= n)
-    value = special.gammaln(n + 1) - special.gammaln(k + 1) - special.gammaln(n - k + 1)
+    safe_k = np.where(valid, k, 0)
+    safe_rest = np.where(valid, n - k, 0)
+    value = table[np.where(valid, n, 0)] - table[safe_k] - table[safe_rest]
     return np.where(valid, value, -np.inf)
 
 
@@ -88,12 +92,14 @@ def runs_distribution(n_positive: int, n_negative: int) -> tuple[np.ndarray, np.
     n1, n2 = int(n_positive), int(n_negative)
     if n1 < 1 or n2 < 1:
         raise ValueError(f"need both kinds present, got {n1} and {n2}")
-    total = _log_binomial(n1 + n2, n1)
+    table = log_factorials(n1 + n2)
+    total = _log_binomial(table, n1 + n2, n1)
     runs = np.arange(2, n1 + n2 + 1)
     k = runs // 2
-    even = math.log(2.0) + _log_binomial(n1 - 1, k - 1) + _log_binomial(n2 - 1, k - 1)
-    odd = np.logaddexp(_log_binomial(n1 - 1, k) + _log_binomial(n2 - 1, k - 1),
-                       _log_binomial(n1 - 1, k - 1) + _log_binomial(n2 - 1, k))
+    even = (math.log(2.0) + _log_binomial(table, n1 - 1, k - 1)
+            + _log_binomial(table, n2 - 1, k - 1))
+    odd = np.logaddexp(_log_binomial(table, n1 - 1, k) + _log_binomial(table, n2 - 1, k - 1),
+                       _log_binomial(table, n1 - 1, k - 1) + _log_binomial(table, n2 - 1, k))
     log_p = np.where(runs % 2 == 0, even, odd) - total
     return runs, np.exp(log_p)
 
@@ -326,7 +332,7 @@ def lack_of_fit_test(
     if noise is not None and dof is not None and dof > 0:
         chi_square = float(z @ z) / noise**2
         scaled = chi_square / dof
-        scaled_p = float(special.gammaincc(0.5 * dof, 0.5 * chi_square))
+        scaled_p = chi_square_survival(chi_square, dof)
     failed = [runs.p < level, r1_p < level, scaled_p is not None and scaled_p < level]
     systematic = any(failed)
     floor = 1.0 / (permutations + 1)

@@ -26,8 +26,8 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special
 
+from fitting.distributions import t_quantile as _t_quantile
 from fitting.parameters import Parameter
 
 __all__ = [
@@ -198,9 +198,7 @@ def information_criteria(sse: float, n_points: int, n_free: int) -> tuple[float,
 
 def t_quantile(dof: float) -> float:
     """Student-t 97.5 % quantile with `dof` degrees of freedom (NaN for ``dof <= 0``)."""
-    # special.stdtrit is what scipy.stats.t.ppf evaluates; scipy.stats itself takes about
-    # a second to import.
-    return float(special.stdtrit(dof, 0.975)) if dof > 0 else math.nan
+    return _t_quantile(dof, 0.975)
 
 
 #: Half-width in ln p beyond which a positive parameter's interval is reported as (0, inf):

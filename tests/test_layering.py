@@ -13,6 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: The layers of ``fitting``, in order: a module may import only modules listed before it
 #: (and anything of ``axialmix``). The package face ``fitting/__init__.py`` loads names lazily.
 FITTING_LAYERS = (
+    "fitting.distributions",
     "fitting.parameters",
     "fitting.losses",
     "fitting.data",

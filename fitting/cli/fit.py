@@ -426,7 +426,7 @@ def _check_fixed_curves(model, settings, curves, files) -> None:
         for name, setting in settings.items():
             if setting.expr is not None:
                 values[name] = values[setting.expr]
-        predicted = np.asarray(model(plot_times(curve.time), values))
+        predicted = model.evaluate(plot_times(curve.time), values)
         if not np.all(np.isfinite(predicted)):
             raise InputError(f"{path}: the model is not finite at the start values "
                              f"({', '.join(f'{k}={v:.4g}' for k, v in values.items())}); check "
