@@ -47,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import axialmix  # noqa: F401  (float64 before any JAX array is made)
+from axialmix.analytic import unverified_parameters
 from fitting.data import Curve
 from fitting.models import Model, get_model
 from fitting.parameters import Parameter
@@ -223,6 +224,29 @@ def _response_function(base: Model, inlet: Inlet):
     return response
 
 
+def _statements(base: Model, inlet: Inlet):
+    """The base model's statements, and a warning when the fitted values lie outside the
+    range where its exact solution is verified (the curve is computed inside compiled code,
+    where :class:`axialmix.analytic.AccuracyWarning` cannot look at the values)."""
+    if base.transfer_unit is None:
+        return base.statements
+
+    def statements(values, settings) -> list[str]:
+        said = [] if base.statements is None else list(base.statements(values, settings))
+        try:
+            unit = base.transfer_unit({n: float(values[n]) for n in base.parameter_names})
+            problems = unverified_parameters(unit, cumulative=inlet.kind == "step")
+        except (ValueError, TypeError):  # values the unit refuses: the fit says so elsewhere
+            return said
+        if problems:
+            said.append("The fitted values are outside the range where this model's exact "
+                        f"solution has been verified ({'; '.join(problems)}): its curve, and "
+                        "so this fit, may be inaccurate.")
+        return said
+
+    return statements
+
+
 def _lowest_median(values: np.ndarray) -> float:
     count = max(3, int(math.ceil(BASELINE_SHARE * values.size)))
     return float(np.median(np.sort(values)[:count]))
@@ -352,7 +376,7 @@ def measured(model: Model | str, inlet: Inlet | None = None,
         f"{inlet.describe()}",
         default_starts=base.default_starts,
         equivalent_adm=base.equivalent_adm,
-        statements=base.statements,
+        statements=_statements(base, inlet),
         units=_units(base, inlet),
         meanings=_meanings(base, inlet),
         base=base,

@@ -175,6 +175,9 @@ class Model:
     - `meanings`: what a parameter means, one sentence, by name (e.g. for ``tau``).
     - `step_response`: optional ``F(t, params)``, the outlet for a unit step inlet at t = 0.
     - `inlet_response`: optional hook, see :data:`InletResponse`.
+    - `transfer_unit`: optional ``params -> TransferFunction``, the model as an exact unit of
+      :mod:`axialmix.analytic`; with it, fits report fitted values outside the range where
+      its inversion is verified (:func:`axialmix.analytic.unverified_parameters`).
     """
 
     name: str
@@ -190,6 +193,8 @@ class Model:
     meanings: Mapping[str, str] = field(default_factory=dict, repr=False)
     step_response: ModelFunction | None = field(default=None, repr=False)
     inlet_response: InletResponse | None = field(default=None, repr=False)
+    transfer_unit: Callable[[Mapping[str, float]], Any] | None = field(default=None,
+                                                                        repr=False)
 
     def __post_init__(self) -> None:
         names = tuple(self.parameter_names)
@@ -657,6 +662,7 @@ adm_exchange = Model(
                      "time is (1 + beta) tau", **_DEAD_ZONE_MEANINGS},
     step_response=_unit_step_function(_adm_exchange_unit),
     inlet_response=_quadrature_inlet_response(_adm_exchange_function),
+    transfer_unit=_adm_exchange_unit,
 )
 
 tanks_exchange = Model(
@@ -673,6 +679,7 @@ tanks_exchange = Model(
                      "the mean residence time is (1 + beta) tau", **_DEAD_ZONE_MEANINGS},
     step_response=_unit_step_function(_tanks_exchange_unit),
     inlet_response=_quadrature_inlet_response(_tanks_exchange_function),
+    transfer_unit=_tanks_exchange_unit,
 )
 
 adm_tank = Model(
@@ -691,6 +698,7 @@ adm_tank = Model(
               "tau_tank": "tau_tank is the mean residence time of the stirred tank after it"},
     step_response=_unit_step_function(_adm_tank_unit),
     inlet_response=_quadrature_inlet_response(_adm_tank_function),
+    transfer_unit=_adm_tank_unit,
 )
 
 

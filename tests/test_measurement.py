@@ -278,3 +278,22 @@ def test_velocity_and_dispersion_errors_follow_the_delta_method():
     low, high = dispersion.ci95
     assert low < dispersion.value < high and velocity.unit == "m/s"
     assert physical_quantities(result)["velocity_m_per_s"].value is None  # no length, no v
+
+
+def test_fits_say_when_fitted_values_leave_the_verified_range():
+    """The exact curve runs inside compiled code, where no AccuracyWarning can look at the
+    values: the fitted model's statements carry the range check instead."""
+    from fitting.measurement import Inlet, measured
+    from fitting.models import get_model
+
+    fast = {"tau": 1.0, "peclet": 100.0, "beta": 2.0, "k_d": 8.0}  # F loses every digit here
+    slow = {**fast, "k_d": 4.0}
+    base = get_model("adm-exchange")
+    step = measured(base, Inlet.step(), ()).statements
+    pulse = measured(base, Inlet.pulse(), ()).statements
+    assert any("outside the range" in line and "exchange number" in line
+               for line in step(fast, {}))
+    assert not any("outside the range" in line for line in pulse(fast, {}))  # E is verified
+    assert not any("outside the range" in line for line in step(slow, {}))
+    far = {**fast, "peclet": 5000.0}
+    assert any("peclet 5000" in line for line in pulse(far, {}))

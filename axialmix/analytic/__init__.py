@@ -64,6 +64,7 @@ from axialmix.analytic.responses import (
     inlet_response,
     ramp_response,
     step_response,
+    unverified_parameters,
 )
 from axialmix.analytic.tanks import exit_age_tanks, mean_tanks, step_response_tanks, variance_tanks
 from axialmix.analytic.transfer import (
@@ -113,6 +114,7 @@ __all__ = [
     "step_response_closed",
     "step_response_open",
     "step_response_tanks",
+    "unverified_parameters",
     "tau_from_physical",
     "transport_from_dimensionless",
     "transfer_function_closed",

@@ -27,7 +27,14 @@ from axialmix.analytic.transfer import (
     TransferFunction,
 )
 
-__all__ = ["AccuracyWarning", "exit_age", "inlet_response", "ramp_response", "step_response"]
+__all__ = [
+    "AccuracyWarning",
+    "exit_age",
+    "inlet_response",
+    "ramp_response",
+    "step_response",
+    "unverified_parameters",
+]
 
 
 class AccuracyWarning(UserWarning):
@@ -106,6 +113,25 @@ def _range_problems(
                     )
         return problems
     return []
+
+
+def unverified_parameters(unit: TransferFunction, *, cumulative: bool = False) -> list[str]:
+    """The parameters of `unit` outside the range where its inversion has been verified.
+
+    The same check that makes :func:`exit_age` and the other responses warn with
+    :class:`AccuracyWarning`, for callers that evaluate the unit inside compiled code (where
+    no warning can look at the values), such as a fit reporting on its fitted parameters.
+
+    **Arguments:**
+
+    - `unit`: a :class:`~axialmix.analytic.TransferFunction` with concrete parameters.
+    - `cumulative`: check the range of the step, ramp and inlet responses (narrower for a
+      dead zone with fast exchange) instead of that of ``E``.
+
+    **Returns:** one phrase per parameter outside its range (empty when all are inside).
+    """
+    _require_unit(unit)
+    return _range_problems(unit, cumulative=cumulative)
 
 
 def _warn_if_unverified(unit: TransferFunction, cumulative: bool = False) -> None:
