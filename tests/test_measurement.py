@@ -286,8 +286,8 @@ def test_fits_say_when_fitted_values_leave_the_verified_range():
     from fitting.measurement import Inlet, measured
     from fitting.models import get_model
 
-    fast = {"tau": 1.0, "peclet": 100.0, "beta": 2.0, "k_d": 8.0}  # F loses every digit here
-    slow = {**fast, "k_d": 4.0}
+    fast = {"tau": 1.0, "peclet": 100.0, "beta": 1e-6, "k_d": 15.0}  # F loses digits here
+    slow = {**fast, "k_d": 10.0}
     base = get_model("adm-exchange")
     step = measured(base, Inlet.step(), ()).statements
     pulse = measured(base, Inlet.pulse(), ()).statements

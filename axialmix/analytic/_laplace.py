@@ -230,7 +230,16 @@ def _log_remainder(ell: jax.Array, s: jax.Array, slope, power: int) -> jax.Array
     non-negative functions.
     """
     if power == 1:
-        return log_expm1(ell) - jnp.log(s)
+        # log(G - 1): where |G| < 1 (real s > 0) as log(1 - G) - i pi, the lower side of the
+        # branch cut, which is where the principal log puts G - 1 just above the real axis;
+        # on the real axis itself the principal log may give +pi (by the sign of a zero), and
+        # the complex-step slopes of the saddle search saw a jump of 2 pi (a dead zone whose
+        # late-form saddle lies right of 0 got a wrong contour and lost every digit).
+        inside = jnp.real(ell) < 0
+        safe_inside = jnp.where(inside, ell, -1.0)
+        safe_outside = jnp.where(inside, 1.0, ell)
+        below = jnp.log(-jnp.expm1(safe_inside)) - 1j * jnp.pi
+        return jnp.where(inside, below, log_expm1(safe_outside)) - jnp.log(s)
     large = jnp.real(ell) > 0
     safe_large = jnp.where(large, ell, 1.0)
     safe_small = jnp.where(large, -1.0, ell)

@@ -53,10 +53,10 @@ _CAPACITY_RANGE = (0.0, 5.0)
 _EXCHANGE_NUMBER_RANGE = (0.01, 100.0)
 # Step, ramp and inlet responses of a dead zone (G/s and G/s² inverted with the removed pole at
 # 0): checked only up to this exchange number when the mobile unit's Peclet number (or tank
-# count) is above the next value; beyond it some cases lose every digit (Pe 70 with k_d τ 15,
-# Pe 100 with β 2 and k_d τ 8; E itself is right there).
-_CUMULATIVE_EXCHANGE_NUMBER = 5.0
-_CUMULATIVE_FAST_EXCHANGE_PECLET = 50.0
+# count) is above the next value; beyond it some cases lose digits (Pe 80, beta 1e-6 and
+# k_d tau 15: 5e-5; Pe 300 with k_d tau 30: every digit), where E itself is right.
+_CUMULATIVE_EXCHANGE_NUMBER = 10.0
+_CUMULATIVE_FAST_EXCHANGE_PECLET = 70.0
 # A stirred tank in series with other units: its time over their mean.
 _TANK_RATIO_RANGE = (1e-3, 10.0)
 
