@@ -18,7 +18,6 @@ plot shows the data as ``(c - b) / A``, i.e. E normalised by the fitted amplitud
 
 from __future__ import annotations
 
-import io
 import math
 import warnings
 from collections.abc import Mapping, Sequence
@@ -30,6 +29,7 @@ import numpy as np
 from axialmix._files import write_atomic, write_csv, write_json
 from axialmix.analytic import peclet_from_variance_ratio as _peclet_from_variance_ratio
 from fitting.diagnostics import ModelComparison, identifiability
+from fitting.drawing import FigureSpec, draw
 from fitting.gridsearch import GridResult
 from fitting.measurement import MeasuredModel, observed_response
 from fitting.models import get_model
@@ -45,6 +45,7 @@ __all__ = [
     "PLOT_POINTS",
     "plot_fit",
     "plot_times",
+    "fit_figure",
     "render_fit_png",
     "summary_rows",
     "summary_table",
@@ -609,28 +610,22 @@ def plot_times(time) -> np.ndarray:
     return np.linspace(0.0, float(np.asarray(time)[-1]) * 1.05, PLOT_POINTS + 1)[1:]
 
 
-def render_fit_png(result: FitResult, grid: GridResult | None = None) -> bytes:
-    """The two-panel PNG of :func:`plot_fit` as bytes, nothing written.
+def fit_figure(result: FitResult, grid: GridResult | None = None) -> FigureSpec:
+    """The arrays and words of a fit's two-panel plot (see :func:`fitting.drawing.draw_fit`).
 
     A curve of more than :data:`MAX_DRAWN_POINTS` samples is drawn with every k-th sample
     (the legend and the residual axis say so); the fit used them all. Values that are not
-    finite are left out of the lines.
+    finite are left out of the lines (NaN).
 
     **Arguments:** as :func:`plot_fit`, without the path.
 
-    **Returns:** the PNG file's bytes.
+    **Returns:** a :data:`~fitting.drawing.FigureSpec` (times in the curve's unit).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.figure import Figure
-
     every, note = _drawn(len(result.time))
-    time = np.asarray(result.time)[every]
+    time = np.asarray(result.time, float)[every]
     # With the measurement model the data are shown as (c - b) / A: E normalised by the
     # fitted amplitude (F for a step inlet, E * u for a measured one).
     shown, label = observed_response(result.model, result.values, result.curve)
-    observed = _plottable(shown[every])
     fine = plot_times(result.time)
     model = result.model
 
@@ -640,38 +635,44 @@ def render_fit_png(result: FitResult, grid: GridResult | None = None) -> bytes:
             curve = (curve - float(values["baseline"])) / float(values["amplitude"])
         return _plottable(curve)
 
-    curve = normalised(result.values)
-    # Fixed margins: a constrained layout costs about 0.15 s a figure, half the drawing time.
-    figure = Figure(figsize=(7, 6))
-    figure.subplots_adjust(left=0.16, right=0.97, top=0.95, bottom=0.08, hspace=0.12)
-    top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[3, 1.3])
-    top.plot(time, observed, "o", color="black", label=f"data{note}",
-             markersize=6 if not note else 2)
-    top.plot(fine, curve, "-", color="tab:blue",
-             label=f"fit ({model.name}, {result.loss_name} = {result.loss:.3g})")
-    if grid is not None:
-        grid_curve = normalised(grid.values)
-        top.plot(fine, grid_curve, "--", color="tab:orange",
-                 label=f"grid search ({grid.loss_name} = {grid.loss:.3g})")
     unit = result.time_unit
     if label in ("E", "E * u"):
-        top.set_ylabel(f"{label} (1/{unit})" + (" = (c - b) / A" if label != "E" or
-                                                 isinstance(model, MeasuredModel) else ""))
+        ylabel = f"{label} (1/{unit})" + (" = (c - b) / A" if label != "E" or
+                                          isinstance(model, MeasuredModel) else "")
     elif label == "F":
-        top.set_ylabel("F = (c - b) / A")
+        ylabel = "F = (c - b) / A"
     else:
-        top.set_ylabel(f"signal ({result.curve.value_unit})" if result.curve.value_unit
-                       else "signal")
-    top.set_title(f"{result.name or 'curve'}: model {model.name}", fontsize=10)
-    top.legend(fontsize=8)
-    residual = _plottable(np.asarray(result.predicted)[every] - np.asarray(result.observed)[every])
-    bottom.axhline(0.0, color="grey", linewidth=0.8)
-    bottom.plot(time, residual, "o-", color="tab:blue", markersize=4 if not note else 1.5,
-                linewidth=1.0 if not note else 0.5)
+        ylabel = (f"signal ({result.curve.value_unit})" if result.curve.value_unit
+                  else "signal")
     signal_unit = f" ({result.curve.value_unit})" if result.curve.value_unit else ""
-    bottom.set_ylabel(f"residual{signal_unit}\n(model - data)"
-                      + ("\n(points drawn as above)" if note else ""))
-    bottom.set_xlabel(f"time ({unit})")
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=100)
-    return buffer.getvalue()
+    return {
+        "time": time,
+        "observed": _plottable(shown[every]),
+        "fine": fine,
+        "curve": normalised(result.values),
+        "grid_curve": None if grid is None else normalised(grid.values),
+        "residual": _plottable(np.asarray(result.predicted)[every]
+                               - np.asarray(result.observed)[every]),
+        "data_label": f"data{note}",
+        "fit_label": f"fit ({model.name}, {result.loss_name} = {result.loss:.3g})",
+        "grid_label": "" if grid is None else f"grid search ({grid.loss_name} = {grid.loss:.3g})",
+        "ylabel": ylabel,
+        "title": f"{result.name or 'curve'}: model {model.name}",
+        "residual_label": (f"residual{signal_unit}\n(model - data)"
+                           + ("\n(points drawn as above)" if note else "")),
+        "xlabel": f"time ({unit})",
+        "thinned": bool(note),
+    }
+
+
+def render_fit_png(result: FitResult, grid: GridResult | None = None) -> bytes:
+    """The two-panel PNG of :func:`plot_fit` as bytes, nothing written.
+
+    Drawn by :func:`fitting.drawing.draw` (in the command line's drawing process when it
+    runs) from :func:`fit_figure`.
+
+    **Arguments:** as :func:`plot_fit`, without the path.
+
+    **Returns:** the PNG file's bytes.
+    """
+    return draw(fit_figure(result, grid))

@@ -14,6 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: (and anything of ``axialmix``). The package face ``fitting/__init__.py`` loads names lazily.
 FITTING_LAYERS = (
     "fitting.distributions",
+    "fitting.drawing",
     "fitting.parameters",
     "fitting.losses",
     "fitting.data",

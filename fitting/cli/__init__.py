@@ -22,6 +22,8 @@ import sys
 import threading
 from types import ModuleType
 
+from fitting import drawing
+
 __all__ = ["COMMANDS", "build_parser", "main"]
 
 #: Sub-command name -> (module, one-line help shown by ``axialmix --help``).
@@ -41,6 +43,8 @@ COMMANDS = {
 #: The exit status after Ctrl-C (:data:`axialmix._exits.INTERRUPTED`; importing that module
 #: here would load JAX before ``--help``).
 _INTERRUPTED = 130
+#: Sub-commands that draw fit plots: the command line starts their drawing process first.
+_DRAWING_COMMANDS = ("fit",)
 
 
 class _InterruptGuard:
@@ -223,6 +227,9 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout, sys.stderr = _PipeSafe(sys.stdout), _PipeSafe(sys.stderr)
     argv = sys.argv[1:] if argv is None else list(argv)
     command = _chosen(argv)
+    if program and command in _DRAWING_COMMANDS and not {"-h", "--help"} & set(argv):
+        # First thing: matplotlib loads in the drawing process while JAX loads here.
+        drawing.start_worker()
     in_main = threading.current_thread() is threading.main_thread()
     guard = _InterruptGuard(command) if in_main else None
     status = 1  # axialmix._exits.FAILED: an exception (a bug) is on its way out
