@@ -16,6 +16,7 @@ arrays of floats and strings only, so that drawing derives nothing.
 from __future__ import annotations
 
 import io
+import os
 import pickle
 import signal
 import struct
@@ -85,6 +86,7 @@ class _Worker:
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
         )
         self.lock = threading.Lock()
+        self.owner = os.getpid()  # a forked copy of this process must not share the pipes
 
     def draw(self, spec: FigureSpec) -> bytes:
         message = pickle.dumps(spec, protocol=pickle.HIGHEST_PROTOCOL)
@@ -149,7 +151,7 @@ def draw(spec: FigureSpec) -> bytes:
     """
     global _worker
     worker = _worker
-    if worker is not None:
+    if worker is not None and worker.owner == os.getpid():
         try:
             return worker.draw(spec)
         except _WorkerFailed:
