@@ -146,12 +146,16 @@ def test_simulate_outputs_are_read_by_fit_as_they_are_and_have_fits_file_mode(tm
 _COMMAND = [sys.executable, "-c", "import sys; from fitting.cli import main; sys.exit(main())"]
 
 
+def _simulate_argv(folder) -> list[str]:
+    return [*_COMMAND, "simulate", "continuous", "--preset", "grid", "--steps", "300000",
+            "--quiet", "--json", str(folder / "run.json"), "--rtd-csv", str(folder / "rtd.csv")]
+
+
 def _interrupt_once(folder, delay: float) -> dict:
     folder.mkdir()
     json_path, csv_path = folder / "run.json", folder / "rtd.csv"
-    argv = [*_COMMAND, "simulate", "continuous", "--preset", "grid", "--steps", "300000",
-            "--quiet", "--json", str(json_path), "--rtd-csv", str(csv_path)]
-    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process = subprocess.Popen(_simulate_argv(folder), stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE)
     time.sleep(delay)
     sent = time.perf_counter()
     process.send_signal(signal.SIGINT)
@@ -175,11 +179,11 @@ def _interrupt_once(folder, delay: float) -> dict:
     return outcome
 
 
-def _interrupt_study(tmp_path, tries: int, seed: int) -> list[dict]:
+def _interrupt_study(tmp_path, tries: int, seed: int, until: float = 7.0) -> list[dict]:
     rng = np.random.default_rng(seed)
     # From just after start-up (imports of axialmix, JAX and numba run inside the command's
-    # own handler) to late in the run (about 7-8 s on two cores).
-    delays = rng.uniform(0.3, 7.0, tries)
+    # own handler) to late in the run (`until`: about 7-8 s on two busy cores).
+    delays = rng.uniform(0.3, until, tries)
     outcomes = [_interrupt_once(tmp_path / f"try{i}", float(d)) for i, d in enumerate(delays)]
     for o in outcomes:
         print(f"SIGINT after {o['delay']:.2f} s: status {o['status']}, exit after "
@@ -195,5 +199,11 @@ def test_ctrl_c_at_random_moments_exits_130_and_leaves_no_partial_file(tmp_path)
 @pytest.mark.study
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 def test_ctrl_c_study_twenty_tries(tmp_path):
-    outcomes = _interrupt_study(tmp_path, tries=20, seed=2)
+    # The signals are spread over 90 % of an uninterrupted run timed first on this machine,
+    # so that most land inside the run whatever its speed.
+    (tmp_path / "uninterrupted").mkdir()
+    began = time.perf_counter()
+    subprocess.run(_simulate_argv(tmp_path / "uninterrupted"), check=True, capture_output=True)
+    duration = time.perf_counter() - began
+    outcomes = _interrupt_study(tmp_path, tries=20, seed=2, until=0.9 * duration)
     assert sum(o["status"] == 130 for o in outcomes) >= 15  # most land inside the run
