@@ -40,6 +40,16 @@ def log_factorials(n: int) -> np.ndarray:
     return np.fromiter(map(math.lgamma, range(1, n + 2)), float, count=n + 1)
 
 
+def _lentz_step(numerator: float, denominator: float, c: float, d: float):
+    """One step of the modified Lentz method for ``b_0 + a_1/(b_1 + a_2/(b_2 + ...))``:
+    the new ``c`` and ``d`` and the factor ``c d`` that multiplies the fraction so far."""
+    d = numerator * d + denominator
+    d = 1.0 / (_TINY if abs(d) < _TINY else d)
+    c = denominator + numerator / c
+    c = _TINY if abs(c) < _TINY else c
+    return c, d, c * d
+
+
 def _iterations(a: float) -> int:
     # Series and fractions converge after a few times sqrt(a) terms near x = a.
     return int(200 + 50 * math.sqrt(a))
@@ -98,14 +108,8 @@ def _upper_gamma(a: float, x: float) -> float:
     d = 1.0 / b
     h = d
     for i in range(1, _iterations(a)):
-        an = -i * (i - a)
         b += 2.0
-        d = an * d + b
-        d = _TINY if abs(d) < _TINY else d
-        c = b + an / c
-        c = _TINY if abs(c) < _TINY else c
-        d = 1.0 / d
-        delta = d * c
+        c, d, delta = _lentz_step(-i * (i - a), b, c, d)
         h *= delta
         if abs(delta - 1.0) < _EPS:
             break
@@ -139,21 +143,9 @@ def _beta_fraction(a: float, b: float, x: float) -> float:
     h = d
     for m in range(1, _iterations(max(a, b))):
         m2 = 2 * m
-        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
-        d = 1.0 + aa * d
-        d = _TINY if abs(d) < _TINY else d
-        c = 1.0 + aa / c
-        c = _TINY if abs(c) < _TINY else c
-        d = 1.0 / d
-        h *= d * c
-        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
-        d = 1.0 + aa * d
-        d = _TINY if abs(d) < _TINY else d
-        c = 1.0 + aa / c
-        c = _TINY if abs(c) < _TINY else c
-        d = 1.0 / d
-        delta = d * c
-        h *= delta
+        c, d, even = _lentz_step(m * (b - m) * x / ((qam + m2) * (a + m2)), 1.0, c, d)
+        c, d, delta = _lentz_step(-(a + m) * (qab + m) * x / ((a + m2) * (qap + m2)), 1.0, c, d)
+        h *= even * delta
         if abs(delta - 1.0) < _EPS:
             break
     return h
