@@ -149,14 +149,12 @@ def draw(spec: FigureSpec) -> bytes:
 
     **Returns:** the PNG file's bytes, the same wherever they were drawn.
     """
-    global _worker
     worker = _worker
     if worker is not None and worker.owner == os.getpid():
         try:
             return worker.draw(spec)
         except _WorkerFailed:
-            _worker = None
-            worker.close()
+            stop_worker()  # not used again; the figure is drawn here
     return draw_fit(spec)
 
 

@@ -435,11 +435,11 @@ def invert_with_dead_zone(
     fixed_mean = jax.lax.stop_gradient(mean)
     # The split's coefficients carry rounding of the size of G on its circles, e^{circle_size}
     # (s' near (β-1) k_d ± 0.83 sqrt(β) k_d, where G ~ e^{|s'| tau}); beyond a cost of e^12
-    # the single contour is taken.
-    # In E that error is multiplied by |e^{s t}| near the cluster, at most e^{(c + r rho) t}
-    # (c + r rho < 0 for a small dead zone), and the split is used from about the mean on:
-    # so the cost is circle_size - |c + r rho| mean. The step and ramp forms also take G_F(0)
-    # from the principal part, whose error e^{s t} does not damp: their cost is circle_size.
+    # the single contour is taken. In E that error is multiplied by |e^{s t}| near the
+    # cluster, at most e^{(c + r rho) t} (c + r rho < 0 for a small dead zone), and the split
+    # is used from about the mean on: so the cost is circle_size - |c + r rho| mean. The step
+    # and ramp forms also take G_F(0) from the principal part, whose error e^{s t} does not
+    # damp: their cost is circle_size.
     circle_size = jnp.max(jnp.real(surrogate_fixed(cluster.points, False)))
     damping = jnp.minimum(center + _CIRCLE_RATIO * safe_radius, 0.0) * fixed_mean
     split_cost = circle_size + (damping if power == 0 else 0.0)

@@ -135,7 +135,7 @@ def unverified_parameters(unit: TransferFunction, *, cumulative: bool = False) -
 
 
 def _warn_if_unverified(unit: TransferFunction, cumulative: bool = False) -> None:
-    problems = _range_problems(unit, cumulative=cumulative)
+    problems = unverified_parameters(unit, cumulative=cumulative)
     if problems:
         warnings.warn(
             "; ".join(problems) + ": the result may be inaccurate", AccuracyWarning, stacklevel=3
