@@ -40,13 +40,14 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from fitting.data import Curve, as_curve
+from fitting.engine import ErrorPlan, fit_chunk_arrays
 from fitting.losses import (
     ERROR_KINDS,
-    LOSSES,
     CombinedErrors,
     ErrorEstimate,
     combined_weights,
@@ -67,6 +68,8 @@ from fitting.solve import (
     Status,
     compiled_solver,
     make_plan,
+    pad_curve,
+    padded_length,
     run_solver,
     second_order_distance,
     start_points,
@@ -257,7 +260,11 @@ def _result(prepared: Prepared, layout: Layout, options: SolverPlan, out: dict,
     residual = out["predicted"] - curve.value
     n_points = int(np.count_nonzero(weights))
     sse = float(np.sum(weights * residual**2))
-    loss = float(LOSSES[options.loss](residual, weights))
+    # The loss of fitting.losses in NumPy (one curve's numbers: no JAX dispatch).
+    if options.loss == "sse":
+        loss = sse
+    else:
+        loss = float(np.sum(weights * np.abs(residual)) / np.sum(weights))
     uncertainty = gauss_newton_uncertainty(out["jacobian"], residual, weights,
                                            out["all_from_free"])
     values = dict(zip(layout.names, out["all_values"].tolist(), strict=True))
@@ -354,23 +361,9 @@ def fit(
 
 
 def _fit_one(model, data, params, weights, settings: FitSettings) -> FitResult:
-    if settings.relative_errors is not None or settings.combined_errors is not None:
-        return _fit_batch(model, [data], params, None if weights is None else [weights],
-                          settings)[0]
-    curve = as_curve(data)
-    multistart = settings.multistart
-    plan = make_plan(settings.loss, settings.optimiser, multistart)
-    prepared = prepare(model, curve, params, weights, multistart.n_starts, multistart.seed)
-    plan = _without_idle_warmup(plan, [prepared])
-    # One curve is a batch of one: fit and fit_many share the compiled solver.
-    solver = compiled_solver(prepared.model, prepared.layout, plan, "curves")
-    out, wall_time, compile_time = run_solver(
-        solver, prepared.starts[None], prepared.warm, prepared.base[None], curve.time[None],
-        curve.value[None], prepared.weights[None],
-    )
-    out = {k: v[0] for k, v in out.items()}
-    result = _result(prepared, prepared.layout, plan, out, wall_time, compile_time, settings)
-    return _with_absolute_errors(result) if weights is None else result
+    # One curve is a chunk of one: fit and fit_many share the engine and its programs.
+    return _fit_batch(model, [data], params, None if weights is None else [weights],
+                      settings)[0]
 
 
 def _with_absolute_errors(result: FitResult) -> FitResult:
@@ -418,14 +411,167 @@ def fit_many(
     return _fit_batch(model, curves, params, weights, settings)
 
 
+
+def _error_plan(settings: FitSettings) -> ErrorPlan:
+    """The engine's static error model of `settings`."""
+    if settings.combined_errors is not None:
+        combined = settings.combined_errors
+        return ErrorPlan("combined", combined.max_passes, float(combined.change))
+    if settings.relative_errors is not None:
+        relative = settings.relative_errors
+        return ErrorPlan("relative", relative.max_passes, float(relative.change),
+                         float(relative.floor))
+    return ErrorPlan()
+
+
+def _prepare_batch(model, curves, params, weights, settings: FitSettings) -> list[Prepared]:
+    """Every curve made ready, with one number of starts for all (the largest default)."""
+    multistart = settings.multistart
+    per_curve_weights = weights if weights is not None else [None] * len(curves)
+    if len(per_curve_weights) != len(curves):
+        raise ValueError(f"{len(per_curve_weights)} weight arrays for {len(curves)} curves")
+    per_curve_params = (params if isinstance(params, Sequence) and not isinstance(params, str)
+                        else [params] * len(curves))
+    if len(per_curve_params) != len(curves):
+        raise ValueError(f"{len(per_curve_params)} parameter settings for {len(curves)} curves")
+
+    def prepare_all(count):
+        return [prepare(model, c, p, w, count, multistart.seed + i)
+                for i, (c, p, w) in enumerate(zip(curves, per_curve_params, per_curve_weights,
+                                                  strict=True))]
+
+    prepared = prepare_all(multistart.n_starts)
+    counts = {p.starts.shape[0] for p in prepared}
+    if len(counts) > 1:
+        # Default starts differ in number between curves: one chunk needs one number.
+        prepared = prepare_all(max(counts))
+    layout = prepared[0].layout
+    for other in prepared[1:]:
+        if dataclasses.replace(other.layout, scale=layout.scale) != layout:
+            raise ValueError("fit_many: every curve must have the same free, fixed and tied "
+                             "parameters and bounds")
+    return prepared
+
+
 def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[FitResult]:
+    """Fit curves with the batched engine (:mod:`fitting.engine`): the curves of each padded
+    length in one compiled call; curves the engine flags for polishing by the multi-start
+    solver's path."""
+    if (settings.combined_errors is not None or settings.relative_errors is not None) and (
+            weights is not None):
+        raise ValueError("the combined error model sets the weights itself; pass weights=None"
+                         if settings.combined_errors is not None else
+                         "relative_errors sets the weights itself; pass weights=None")
+    curves = [as_curve(c) for c in curves]
+    if not curves:
+        raise ValueError("fit_many needs at least one curve")
+    options = make_plan(settings.loss, settings.optimiser, settings.multistart)
+    if options.method != "lm":
+        # L-BFGS and Adam (the mean absolute error): each start on its own.
+        return _fit_polished(model, curves, params, weights, settings)
+    prepared = _prepare_batch(model, curves, params, weights, settings)
+    options = _without_idle_warmup(options, prepared)
+    errors = _error_plan(settings)
+    layout = prepared[0].layout
+    results: list[FitResult | None] = [None] * len(curves)
+    polish: list[int] = []
+    groups: dict[int, list[int]] = {}
+    for i, p in enumerate(prepared):
+        groups.setdefault(padded_length(len(p.curve)), []).append(i)
+    for length, members in groups.items():
+        padded = [pad_curve(prepared[i].curve.time, prepared[i].curve.value,
+                             prepared[i].weights, length) for i in members]
+        out, wall, compile_time = fit_chunk_arrays(
+            prepared[0].model, layout, options, errors,
+            np.stack([prepared[i].starts for i in members]),
+            np.stack([prepared[i].warm for i in members]),
+            np.stack([prepared[i].base for i in members]),
+            np.stack([prepared[i].layout.scale for i in members]),
+            *(np.stack([row[k] for row in padded]) for k in range(3)))
+        share, compile_share = wall / len(members), compile_time / len(members)
+        for row, i in enumerate(members):
+            lane = jax.tree.map(lambda a, row=row: a[row], out)
+            result = _engine_result(prepared[i], lane, options, errors, settings, share,
+                                    compile_share, weights is not None)
+            if result is None:
+                polish.append(i)
+            else:
+                results[i] = result
+    if polish:
+        # Curves the multi-start solver polishes, each alone (so that its path and numbers
+        # are the same in every chunk).
+        for i in polish:
+            results[i] = _fit_polished(
+                model, [curves[i]], [prepared[i].params],
+                None if weights is None else [weights[i]], settings)[0]
+    return results
+
+
+def _lane_output(lane: dict, n: int) -> dict:
+    """One fit's outputs from the engine, trimmed to the curve's own samples."""
+    out = {k: np.asarray(v) for k, v in lane.items()}
+    out["predicted"] = out["predicted"][:n]
+    out["jacobian"] = out["jacobian"][:n]
+    return out
+
+
+def _engine_result(prepared: Prepared, lane: dict, options: SolverPlan, errors: ErrorPlan,
+                   settings: FitSettings, wall: float, compile_time: float,
+                   weighted: bool) -> FitResult | None:
+    """The fit result of one curve from the engine's arrays, or ``None`` where the curve
+    needs the multi-start solver's polishing."""
+    if bool(lane["polish_first"]):
+        return None
+    n = len(prepared.curve)
+    layout = prepared.layout
+    plain = dataclasses.replace(settings, relative_errors=None, combined_errors=None)
+    first = _result(prepared, layout, options, _lane_output(lane["first"], n), wall,
+                    compile_time, plain if errors.kind != "absolute" else settings)
+    if errors.kind == "absolute":
+        return first if weighted else _with_absolute_errors(first)
+    first = _with_absolute_errors(first)
+    if errors.kind == "combined" and first.lack_of_fit.systematic:
+        return _kept_unweighted(first, settings)
+    if bool(lane["polish_passes"]):
+        return None
+    passes = int(lane["passes"])
+    final_out = _lane_output(lane["final"], n)
+    final_out["start_losses"] = np.asarray(lane["final"]["scaled_loss"] *
+                                           lane["final"]["scale"])[None]
+    final_out["evaluations"] = lane["evaluations"]
+    reweighted = dataclasses.replace(prepared, weights=np.asarray(lane["weights"])[:n])
+    single = dataclasses.replace(options, warmup_steps=0)
+    final = _result(reweighted, layout, single, final_out, wall, compile_time, settings)
+    if errors.kind == "relative":
+        method = ("relative errors: reweighted by 1/model^2 until consistent "
+                  f"({passes} passes)")
+    else:
+        method = ("additive plus proportional errors: reweighted by 1/(a^2 + (b model)^2), a "
+                  "and b estimated from the residuals, until consistent "
+                  f"({passes} passes)")
+    final = dataclasses.replace(final, method=f"{final.method}; {method}",
+                                n_starts=first.n_starts, init_params=first.init_params,
+                                start_losses=first.start_losses)
+    if errors.kind == "relative":
+        final = _with_effective_dof(final)
+        return dataclasses.replace(final, error_model=ErrorEstimate("relative", 0.0,
+                                                                    final.sigma, passes))
+    a, b = (float(x) for x in lane["sizes"])
+    return _with_estimated_weight_shape(dataclasses.replace(
+        final, error_model=ErrorEstimate("combined", a, b, passes)))
+
+
+def _fit_polished(model, curves, params, weights, settings: FitSettings) -> list[FitResult]:
+    """The multi-start solver's path (:class:`fitting.solve.MultiStartSolver`): each start
+    of each curve one compiled call, then its Python polishing (Newton's method, L-BFGS)
+    where Levenberg–Marquardt stopped short; used for the curves the batched engine flags."""
     if settings.combined_errors is not None:
         if weights is not None:
             raise ValueError("the combined error model sets the weights itself; pass "
                              "weights=None")
         curves = [as_curve(c) for c in curves]
         plain = dataclasses.replace(settings, combined_errors=None)
-        first = _fit_batch(model, curves, params, None, plain)
+        first = _fit_polished(model, curves, params, None, plain)
         # The error model is estimated from residuals, which measure the noise only where
         # the model describes the curve: a systematic misfit would be read as noise growing
         # with the model, and the weights it gives pull the fit away from the peak, further
@@ -447,7 +593,7 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
             raise ValueError("relative_errors sets the weights itself; pass weights=None")
         curves = [as_curve(c) for c in curves]
         plain = dataclasses.replace(settings, relative_errors=None)
-        first = _fit_batch(model, curves, params, None, plain)
+        first = _fit_polished(model, curves, params, None, plain)
         return _refit_with_relative_errors(model, curves, first, settings)
     curves = [as_curve(c) for c in curves]
     if not curves:
@@ -508,13 +654,6 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
     return results if weights is not None else [_with_absolute_errors(r) for r in results]
 
 
-def _without_idle_warmup(options: SolverPlan, prepared: Sequence[Prepared]) -> SolverPlan:
-    """Drop the Adam warm-up from the compiled solver when no start is random."""
-    if options.warmup_steps > 0 and not any(p.warm.any() for p in prepared):
-        return dataclasses.replace(options, warmup_steps=0)
-    return options
-
-
 def _relative_weights(result: FitResult, loss: str, floor: float) -> np.ndarray:
     size = np.abs(np.asarray(result.predicted, dtype=float))
     size = np.maximum(size, floor * max(float(size.max(initial=0.0)), 1e-300))
@@ -563,7 +702,7 @@ def _reweighted_passes(model, curves: Sequence[Curve], first: Sequence[FitResult
         if weights is None:
             break
         starts = [r.restart_parameters() for r in results]
-        new = _fit_batch(model, curves, starts, weights, single)
+        new = _fit_polished(model, curves, starts, weights, single)
         count += 1
         evaluations += [r.n_evaluations for r in new]
         wall += [r.wall_time for r in new]

@@ -212,7 +212,7 @@ def leverages(jacobian: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 #: Range of the proportional share ``f`` searched, in ``logit f``: up to ``1 - f = 4e-18``,
 #: so an absent additive part is found as (numerically) zero, never exactly zero.
-_LOGIT_RANGE = 40.0
+LOGIT_RANGE = 40.0
 #: Most numbers held at once by the grid search of the combined error sizes.
 _GRID_BLOCK = 1 << 20
 
@@ -260,7 +260,7 @@ def estimate_combined_errors(residual: np.ndarray, model_values: np.ndarray,
         g = additive + proportional * relative
         return float(np.sum(np.log(g)) + squared.size * math.log(np.mean(squared / g)))
 
-    grid = np.linspace(-_LOGIT_RANGE, _LOGIT_RANGE, 161)
+    grid = np.linspace(-LOGIT_RANGE, LOGIT_RANGE, 161)
     # The same likelihood on many grid points at once (array operations, not 161 calls), in
     # blocks of at most _GRID_BLOCK numbers so that a curve of a million samples stays small.
     values = np.empty(grid.size)

@@ -157,9 +157,9 @@ FIRST_ORDER_CONVERGED = (Status.GRADIENT, Status.LOSS_CHANGE, Status.PRECISION_L
 #: Newton distance to a local minimum, in standard errors, below which a fit that stopped on
 #: a singular Gauss-Newton curvature counts as converged (status 8).
 SECOND_ORDER_DISTANCE = 1e-3
-_RUNNING = -1
+RUNNING = -1
 #: Scaled loss (1 = a zero model curve) at or above which a fit is reported as missing the data.
-_PLATEAU = 0.99
+PLATEAU = 0.99
 #: The optimiser methods (see :class:`Optimiser`).
 METHODS = ("auto", "lm", "lbfgs", "adam")
 #: Method names in results and reports.
@@ -338,7 +338,7 @@ def padded_length(size: int) -> int:
     return max(16, 1 << max(int(size) - 1, 0).bit_length())
 
 
-def _pad_curve(time, observed, weights, length: int):
+def pad_curve(time, observed, weights, length: int):
     """`time`, `observed`, `weights` padded to `length` with zero-weight points, the times
     continuing the last spacing."""
     time = np.asarray(time, dtype=float)
@@ -380,7 +380,7 @@ def _write_export(path: Path, blob: bytes) -> None:
             other.unlink(missing_ok=True)
 
 
-class _Program:
+class Program:
     """One pure function of arrays, compiled once per argument shapes.
 
     With a `key` (programs of built-in models) and exports on (:func:`enable_compilation_cache`)
@@ -465,21 +465,21 @@ def _lbfgs(objective: Callable, u0, options: SolverPlan):
                 count >= options.max_steps,
             ],
             [4, 0, 3, 1, 2],
-            default=_RUNNING,
+            default=RUNNING,
         )
         return u_next, state, value_next, grad_next, count, evaluations, status
 
     initial_status = jnp.where(
-        ~jnp.isfinite(value0), 4, jnp.where(jnp.linalg.norm(grad0) <= options.tol, 0, _RUNNING)
+        ~jnp.isfinite(value0), 4, jnp.where(jnp.linalg.norm(grad0) <= options.tol, 0, RUNNING)
     )
     carry = (u0, solver.init(u0), value0, grad0, jnp.asarray(0), jnp.asarray(1), initial_status)
     u, _, value, grad, count, evaluations, status = jax.lax.while_loop(
-        lambda c: c[-1] == _RUNNING, step, carry
+        lambda c: c[-1] == RUNNING, step, carry
     )
     return u, value, grad, count, evaluations, status
 
 
-def _adam(objective: Callable, u0, options: SolverPlan, max_steps: int):
+def adam_minimise(objective: Callable, u0, options: SolverPlan, max_steps: int):
     """Minimise `objective` with Adam for at most `max_steps`; returns the best point seen."""
     import optax  # only L-BFGS and Adam need it (a fifth of a second to import)
 
@@ -499,14 +499,14 @@ def _adam(objective: Callable, u0, options: SolverPlan, max_steps: int):
         status = jnp.select(
             [jnp.linalg.norm(best_grad) <= options.tol, count >= max_steps],
             [0, 2],
-            default=_RUNNING,
+            default=RUNNING,
         )
         return optax.apply_updates(u, updates), state, best_u, best_value, best_grad, count, status
 
     carry = (u0, solver.init(u0), u0, jnp.asarray(jnp.inf), jnp.full_like(u0, jnp.inf),
-             jnp.asarray(0), jnp.asarray(_RUNNING if max_steps > 0 else 2))
+             jnp.asarray(0), jnp.asarray(RUNNING if max_steps > 0 else 2))
     _, _, u, value, grad, count, status = jax.lax.while_loop(
-        lambda c: c[-1] == _RUNNING, step, carry
+        lambda c: c[-1] == RUNNING, step, carry
     )
     status = jnp.where(jnp.isfinite(value), status, 4)
     return u, value, grad, count, count, status
@@ -562,6 +562,72 @@ _SLOW_FALL = 1e-3
 _MAX_STEP = 1.0
 
 
+def lm_initial(u0, empty):
+    """Levenberg–Marquardt's loop state before its first iteration (which only evaluates
+    at `u0`); `empty`: zeros of the shapes of ``(r, J, aux)``. See :func:`lm_step`."""
+    residual0, jacobian0, aux0 = empty
+    return (u0, residual0, jacobian0, aux0, jnp.asarray(jnp.inf), jnp.asarray(_INITIAL_DAMPING),
+            jnp.asarray(2.0), jnp.asarray(True), jnp.asarray(0), jnp.asarray(0),
+            jnp.asarray(0), jnp.asarray(jnp.inf), jnp.asarray(RUNNING))
+
+
+def lm_step(evaluate: Callable, carry, options: SolverPlan):
+    """One Levenberg–Marquardt iteration on the loop state `carry` (see
+    :func:`_levenberg_marquardt`); its last entry is the status (``RUNNING`` until a
+    stopping rule fires)."""
+    (u, residual, jacobian, aux, value, damping, factor, first, count, evaluations, stalled,
+     checkpoint, _) = carry
+    curvature = jacobian.T @ jacobian
+    gradient = jacobian.T @ residual
+    size = jnp.maximum(jnp.max(jnp.diag(curvature)), 1e-300)
+    move = _cholesky_solve(curvature + damping * size * jnp.eye(gradient.shape[0]),
+                           -gradient)
+    longest = jnp.max(jnp.abs(move))
+    move = move * jnp.where(longest > _MAX_STEP, _MAX_STEP / longest, 1.0)
+    trial = jnp.where(first, u, u + move)
+    new_residual, new_jacobian, new_aux = evaluate(trial)
+    new_value = new_residual @ new_residual
+    finite = jnp.isfinite(new_value) & jnp.all(jnp.isfinite(new_jacobian))
+    accept = finite & (first | (new_value < value))
+    predicted_fall = -(2.0 * gradient @ move + move @ curvature @ move)
+    ratio = (value - new_value) / jnp.where(predicted_fall > 0, predicted_fall, jnp.inf)
+    damping_next = jnp.where(
+        first, _INITIAL_DAMPING,
+        jnp.where(accept, damping * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3),
+                  damping * factor))
+    factor_next = jnp.where(accept, 2.0, 2.0 * factor)
+    relative_change = (value - new_value) / jnp.maximum(jnp.abs(value), 1e-300)
+    small_change = accept & ~first & (relative_change <= options.ftol)
+    stalled = jnp.where(small_change, stalled + 1, jnp.where(accept, 0, stalled))
+
+    def keep(new, old):
+        return jax.tree.map(lambda a, b: jnp.where(accept, a, b), new, old)
+
+    u, residual, jacobian, aux, kept_value = keep(
+        (trial, new_residual, new_jacobian, new_aux, new_value),
+        (u, residual, jacobian, aux, value))
+    count = count + jnp.where(first, 0, 1)
+    gradient_norm = jnp.linalg.norm(2.0 * jacobian.T @ residual)
+    # Every _SLOW_STEPS iterations: did the loss fall by at least _SLOW_FALL of itself?
+    milestone = ~first & (count % _SLOW_STEPS == 0)
+    slow = milestone & (checkpoint - kept_value <= _SLOW_FALL * checkpoint)
+    checkpoint = jnp.where(first | milestone, kept_value, checkpoint)
+    status = jnp.select(
+        [
+            first & ~finite,
+            ~first & (gradient_norm <= options.tol) & (longest <= options.xtol),
+            small_change & ((longest <= options.xtol) | (stalled >= _STALLED_STEPS)),
+            damping_next > _MAX_DAMPING,
+            count >= options.max_steps,
+            slow,
+        ],
+        [4, 0, 1, 3, 2, 10],
+        default=RUNNING,
+    )
+    return (u, residual, jacobian, aux, kept_value, damping_next, factor_next,
+            jnp.asarray(False), count, evaluations + 1, stalled, checkpoint, status)
+
+
 def _levenberg_marquardt(evaluate: Callable, u0, empty, options: SolverPlan):
     """Minimise ``r(u)·r(u)`` from `u0` by Levenberg–Marquardt in a while_loop.
 
@@ -574,66 +640,10 @@ def _levenberg_marquardt(evaluate: Callable, u0, empty, options: SolverPlan):
     iteration only evaluates at `u0`, so the program holds the model once.
     Returns ``(u, value, gradient, steps, evaluations, status, aux)``.
     """
-
-    def step(carry):
-        (u, residual, jacobian, aux, value, damping, factor, first, count, evaluations, stalled,
-         checkpoint, _) = carry
-        curvature = jacobian.T @ jacobian
-        gradient = jacobian.T @ residual
-        size = jnp.maximum(jnp.max(jnp.diag(curvature)), 1e-300)
-        move = _cholesky_solve(curvature + damping * size * jnp.eye(gradient.shape[0]),
-                               -gradient)
-        longest = jnp.max(jnp.abs(move))
-        move = move * jnp.where(longest > _MAX_STEP, _MAX_STEP / longest, 1.0)
-        trial = jnp.where(first, u, u + move)
-        new_residual, new_jacobian, new_aux = evaluate(trial)
-        new_value = new_residual @ new_residual
-        finite = jnp.isfinite(new_value) & jnp.all(jnp.isfinite(new_jacobian))
-        accept = finite & (first | (new_value < value))
-        predicted_fall = -(2.0 * gradient @ move + move @ curvature @ move)
-        ratio = (value - new_value) / jnp.where(predicted_fall > 0, predicted_fall, jnp.inf)
-        damping_next = jnp.where(
-            first, _INITIAL_DAMPING,
-            jnp.where(accept, damping * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3),
-                      damping * factor))
-        factor_next = jnp.where(accept, 2.0, 2.0 * factor)
-        relative_change = (value - new_value) / jnp.maximum(jnp.abs(value), 1e-300)
-        small_change = accept & ~first & (relative_change <= options.ftol)
-        stalled = jnp.where(small_change, stalled + 1, jnp.where(accept, 0, stalled))
-
-        def keep(new, old):
-            return jax.tree.map(lambda a, b: jnp.where(accept, a, b), new, old)
-
-        u, residual, jacobian, aux, kept_value = keep(
-            (trial, new_residual, new_jacobian, new_aux, new_value),
-            (u, residual, jacobian, aux, value))
-        count = count + jnp.where(first, 0, 1)
-        gradient_norm = jnp.linalg.norm(2.0 * jacobian.T @ residual)
-        # Every _SLOW_STEPS iterations: did the loss fall by at least _SLOW_FALL of itself?
-        milestone = ~first & (count % _SLOW_STEPS == 0)
-        slow = milestone & (checkpoint - kept_value <= _SLOW_FALL * checkpoint)
-        checkpoint = jnp.where(first | milestone, kept_value, checkpoint)
-        status = jnp.select(
-            [
-                first & ~finite,
-                ~first & (gradient_norm <= options.tol) & (longest <= options.xtol),
-                small_change & ((longest <= options.xtol) | (stalled >= _STALLED_STEPS)),
-                damping_next > _MAX_DAMPING,
-                count >= options.max_steps,
-                slow,
-            ],
-            [4, 0, 1, 3, 2, 10],
-            default=_RUNNING,
-        )
-        return (u, residual, jacobian, aux, kept_value, damping_next, factor_next,
-                jnp.asarray(False), count, evaluations + 1, stalled, checkpoint, status)
-
-    residual0, jacobian0, aux0 = empty
-    carry = (u0, residual0, jacobian0, aux0, jnp.asarray(jnp.inf), jnp.asarray(_INITIAL_DAMPING),
-             jnp.asarray(2.0), jnp.asarray(True), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
-             jnp.asarray(jnp.inf), jnp.asarray(_RUNNING))
-    u, residual, jacobian, aux, value, _, _, _, count, evaluations, _, _, status = (
-        jax.lax.while_loop(lambda c: c[-1] == _RUNNING, step, carry))
+    carry = jax.lax.while_loop(lambda c: c[-1] == RUNNING,
+                               lambda c: lm_step(evaluate, c, options),
+                               lm_initial(u0, empty))
+    u, residual, jacobian, aux, value, _, _, _, count, evaluations, _, _, status = carry
     return u, value, 2.0 * jacobian.T @ residual, count, evaluations, status, aux
 
 
@@ -666,7 +676,7 @@ def _single_start_function(model, layout: Layout, options: SolverPlan) -> Callab
         warm_evaluations = jnp.asarray(0)
         if options.warmup_steps > 0 and options.method != "adam":
             def warm_up(u):
-                u_warm, _, _, _, evaluations, _ = _adam(objective, u, options,
+                u_warm, _, _, _, evaluations, _ = adam_minimise(objective, u, options,
                                                         options.warmup_steps)
                 return u_warm, evaluations
 
@@ -697,7 +707,7 @@ def _single_start_function(model, layout: Layout, options: SolverPlan) -> Callab
             free_values = layout.physical_from_unconstrained(u)
         else:
             if options.method == "adam":
-                u, value, grad, steps, evaluations, status = _adam(objective, u0, options,
+                u, value, grad, steps, evaluations, status = adam_minimise(objective, u0, options,
                                                                    options.max_steps)
             else:
                 u, value, grad, steps, evaluations, status = _lbfgs(objective, u0, options)
@@ -760,7 +770,7 @@ _PROGRAMS: collections.OrderedDict = collections.OrderedDict()
 _MAX_PROGRAMS = 64
 
 
-def _solver_program(model, layout: Layout, options: SolverPlan) -> _Program:
+def _solver_program(model, layout: Layout, options: SolverPlan) -> Program:
     """The single-start program of a model, layout and plan, shared within the process.
 
     A plan without warm-up runs on the program of the same plan with a warm-up when this
@@ -775,8 +785,8 @@ def _solver_program(model, layout: Layout, options: SolverPlan) -> _Program:
                         if m is model and lay == layout
                         and dataclasses.replace(plan, warmup_steps=0) == options), None)
     if program is None:
-        program = _Program(_single_start_function(model, layout, options),
-                           f"solve-{model.name}", _export_key(model, layout, options))
+        program = Program(_single_start_function(model, layout, options),
+                           f"solve-{model.name}", export_key(model, layout, options))
         _PROGRAMS[key] = program
         while len(_PROGRAMS) > _MAX_PROGRAMS:
             _PROGRAMS.popitem(last=False)
@@ -785,13 +795,13 @@ def _solver_program(model, layout: Layout, options: SolverPlan) -> _Program:
     return program
 
 
-def _export_key(model, *parts) -> tuple | None:
+def export_key(model, *parts) -> tuple | None:
     """The key of a model's program for :mod:`jax.export` (see :func:`model_identity`)."""
     identity = model_identity(model)
     return None if identity is None else (identity, *map(repr, parts))
 
 
-def _run(program: _Program, arguments: tuple, times: list[float]) -> dict:
+def _run(program: Program, arguments: tuple, times: list[float]) -> dict:
     """Run `program` on `arguments` as NumPy outputs; add run and compile seconds to `times`."""
     executable, seconds = program.executable(arguments)
     began = _time.perf_counter()
@@ -842,7 +852,7 @@ class MultiStartSolver:
             raise ValueError(f"batch must be 'curves' or 'bases', got {batch!r}")
         self.model, self.layout, self.options, self.batch = model, layout, options, batch
         self.program = _solver_program(model, layout, options)
-        self._lbfgs: _Program | None = None
+        self._lbfgs: Program | None = None
 
     def __call__(self, starts, warm, base, time, observed, weights) -> tuple[dict, float, float]:
         """Run every start on every row; returns the outputs (a leading axis per row), the run
@@ -857,7 +867,7 @@ class MultiStartSolver:
             data = [np.asarray(a if shared else a[i], dtype=float)
                     for a in (time, observed, weights)]
             size = data[0].shape[0]
-            padded = _pad_curve(*data, padded_length(size))
+            padded = pad_curve(*data, padded_length(size))
             per_start = [_run(self.program, (starts[i, s], np.asarray(warm[s]), base[i],
                                               *padded), times)
                          for s in range(starts.shape[1])]
@@ -881,7 +891,7 @@ class MultiStartSolver:
                     status, newton_step = self._check(out, *padded)
             # A model curve that explains (almost) nothing of the data sits on a plateau of
             # the loss where every stopping rule can fire; never call that converged.
-            if values[best] >= _PLATEAU:
+            if values[best] >= PLATEAU:
                 status = Status.MISSES_DATA
             outputs.append({
                 "free_values": out["free_values"],
@@ -901,13 +911,13 @@ class MultiStartSolver:
         return ({k: np.stack([o[k] for o in outputs]) for k in outputs[0]}, run_time,
                 compile_time)
 
-    def lbfgs_program(self) -> _Program:
+    def lbfgs_program(self) -> Program:
         """The L-BFGS program that redoes a start where Levenberg–Marquardt crawled (built once)."""
         if self._lbfgs is None:
             options = dataclasses.replace(self.options, method="lbfgs")
-            self._lbfgs = _Program(_single_start_function(self.model, self.layout, options),
+            self._lbfgs = Program(_single_start_function(self.model, self.layout, options),
                                    f"lbfgs-{self.model.name}",
-                                   _export_key(self.model, self.layout, options))
+                                   export_key(self.model, self.layout, options))
         return self._lbfgs
 
     def _newton_polish(self, out: dict, base, padded, times: list[float]) -> dict | None:
@@ -1039,7 +1049,7 @@ def start_points(
 
 
 @functools.lru_cache(maxsize=64)
-def _curvature_program(model, layout: Layout) -> _Program:
+def _curvature_program(model, layout: Layout) -> Program:
     """The program of ``(value, gradient, Hessian)`` of ``Σ w r²`` in the free parameters
     (zero weights: points that do not count), the model held once."""
 
@@ -1056,7 +1066,7 @@ def _curvature_program(model, layout: Layout) -> _Program:
         hessian, (value, gradient) = jax.jacfwd(gradient_and_value, has_aux=True)(*arguments)
         return value, gradient, hessian
 
-    return _Program(curvature, f"curvature-{model.name}", _export_key(model, layout))
+    return Program(curvature, f"curvature-{model.name}", export_key(model, layout))
 
 
 @functools.lru_cache(maxsize=64)
@@ -1074,7 +1084,7 @@ def compiled_curvature(model, layout: Layout) -> Callable:
     def run(free_values, base, time, observed, weights):
         size = np.asarray(time).shape[0]
         arguments = (np.asarray(free_values, dtype=float), np.asarray(base, dtype=float),
-                     *_pad_curve(time, observed, weights, padded_length(size)))
+                     *pad_curve(time, observed, weights, padded_length(size)))
         executable, _ = program.executable(arguments)
         return jax.device_get(executable(*arguments))
 

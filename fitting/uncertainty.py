@@ -20,6 +20,7 @@ deprecated aliases kept one release).
 
 from __future__ import annotations
 
+import functools
 import importlib
 import math
 import warnings
@@ -196,6 +197,7 @@ def information_criteria(sse: float, n_points: int, n_free: int) -> tuple[float,
     return log_likelihood_term + 2 * n_free, log_likelihood_term + n_free * math.log(n_points)
 
 
+@functools.lru_cache(maxsize=4096)
 def t_quantile(dof: float) -> float:
     """Student-t 97.5 % quantile with `dof` degrees of freedom (NaN for ``dof <= 0``)."""
     return _t_quantile(dof, 0.975)

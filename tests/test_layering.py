@@ -21,6 +21,7 @@ FITTING_LAYERS = (
     "fitting.models",
     "fitting.measurement",
     "fitting.solve",
+    "fitting.engine",
     "fitting.uncertainty",
     "fitting.residuals",
     "fitting.result",

@@ -52,7 +52,7 @@ import equinox as eqx
 from axialmix._files import write_atomic, write_csv
 from axialmix._progress import progress_bar
 from fitting.data import Curve
-from fitting.fit import fit
+from fitting.fit import fit, fit_many
 from fitting.losses import ERROR_KINDS
 from fitting.measurement import FREEABLE, INLET_KINDS, Inlet, measured
 from fitting.models import MODELS, Model, network_model
@@ -190,15 +190,28 @@ def fit_chunk(plan: StudyPlan, curves: Sequence[Curve],
         _CACHE_ENABLED.set()
     settings = dict(plan.parameters)
     inlets = inlets if inlets is not None else [None] * len(curves)
-    records = []
-    for curve, inlet in zip(curves, inlets, strict=True):
+    results: list = [None] * len(curves)
+    # Curves with the plan's inlet share one model: one batched fit for all of them.
+    shared = [i for i, inlet in enumerate(inlets) if inlet is None]
+    own = [i for i, inlet in enumerate(inlets) if inlet is not None]
+    options = dict(loss="sse", errors=plan.errors, multistart=MultiStart(n_starts=plan.starts))
+    if shared:
         try:
-            result = fit(plan_model(plan, inlet), curve, settings, loss="sse",
-                         errors=plan.errors, multistart=MultiStart(n_starts=plan.starts))
+            fitted = fit_many(plan_model(plan), [curves[i] for i in shared], settings, **options)
+        except ValueError:
+            fitted = None  # some curve cannot be fitted: find it, curve by curve
+        if fitted is not None:
+            for i, result in zip(shared, fitted, strict=True):
+                results[i] = result
+        else:
+            own = sorted(own + shared)
+    for i in own:
+        try:
+            results[i] = fit(plan_model(plan, inlets[i]), curves[i], settings, **options)
         except ValueError as error:
-            raise ValueError(f"curve {curve.name!r}: {error}") from None
-        records.append(fit_record(result, None, source=curve.source, length_m=plan.length_m))
-    return records
+            raise ValueError(f"curve {curves[i].name!r}: {error}") from None
+    return [fit_record(result, None, source=curve.source, length_m=plan.length_m)
+            for result, curve in zip(results, curves, strict=True)]
 
 
 def _label(name: str, unit: str | None) -> str:
