@@ -192,6 +192,11 @@ def _normal_quantile(p: float) -> float:
     return z
 
 
+#: Degrees of freedom below which the t quantile comes from its tail's leading term (Newton's
+#: method from the normal quantile stalls there: at 0.001 the quantile is about e^3000).
+_FAR_BELOW = 0.01
+
+
 def t_quantile(dof: float, probability: float = 0.975) -> float:
     """Quantile of Student's t distribution with `dof` degrees of freedom.
 
@@ -228,10 +233,26 @@ def t_quantile(dof: float, probability: float = 0.975) -> float:
     # P(T > t) is convex and decreasing for t > 0, and the normal quantile is below every t
     # quantile: Newton's method climbs to the root without overshooting (with heavy tails,
     # small dof, each step multiplies t by about 1 + 1/dof until it is near).
+    if dof < _FAR_BELOW:
+        return _t_quantile_far(dof, target)
     t = z
     for _ in range(1000):
-        step = (_t_tail(t, dof) - target) / _t_density(t, dof)
+        density = _t_density(t, dof)
+        if not (density > 0 and math.isfinite(t)):
+            return _t_quantile_far(dof, target)
+        step = (_t_tail(t, dof) - target) / density
         t += step
         if abs(step) <= 1e-15 * t:
             break
     return t
+
+
+def _t_quantile_far(dof: float, tail: float) -> float:
+    """The t quantile of upper tail `tail` far out, where the density underflows (a tiny
+    `dof`): from ``P(T > t) ~ C t^-dof``, ``C = Γ((dof+1)/2) dof^((dof-1)/2) / (√π Γ(dof/2))``
+    (the leading term of the tail, whose relative error is of order ``dof / t²``); infinite
+    when it exceeds the largest float."""
+    log_c = (math.lgamma((dof + 1.0) / 2.0) + (0.5 * dof - 1.0) * math.log(dof)
+             - 0.5 * math.log(math.pi) - math.lgamma(dof / 2.0))
+    log_t = (log_c - math.log(tail)) / dof
+    return math.exp(log_t) if log_t < 709.0 else math.inf

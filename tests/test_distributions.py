@@ -64,3 +64,18 @@ def test_runs_distribution_is_a_distribution_with_the_known_mean(n_positive, n_n
     # E[runs] = 1 + 2 n1 n2 / (n1 + n2) for a random order (Wald and Wolfowitz 1940).
     assert np.sum(runs * probability) == pytest.approx(
         1.0 + 2.0 * n_positive * n_negative / total, rel=1e-12)
+
+
+def test_t_quantile_of_a_tiny_number_of_degrees_of_freedom():
+    """Below 0.01 degrees of freedom the quantile comes from the tail's leading term (an
+    effective dof that small arises from relative-error weights on additive noise); it
+    agrees with SciPy just below the switch (further down SciPy's own quantile saturates near
+    1e152) and grows without bound as dof falls."""
+    from scipy import stats
+
+    for probability in (0.6, 0.975):
+        expected = stats.t.ppf(probability, 0.0099)
+        assert t_quantile(0.0099, probability) == pytest.approx(expected, rel=1e-9)
+    assert t_quantile(1e-3) == math.inf and t_quantile(1.19e-8) == math.inf
+    values = [t_quantile(d) for d in (0.05, 0.02, 0.011, 0.0099, 0.005)]
+    assert all(a < b for a, b in zip(values, values[1:], strict=False))
