@@ -47,11 +47,6 @@ FITTING_LAYERS = (
     "fitting.cli.funnel",
     "fitting.cli.divert",
     "fitting.cli",
-    # Deprecated aliases of earlier releases, kept one release: they sit on top.
-    "fitting.io",
-    "fitting.objective",
-    "fitting.optimize",
-    "fitting.fitcli",
 )
 #: Optional or heavy third-party packages a fitting module may import inside a function.
 OPTIONAL_HEAVY = ("matplotlib", "statsmodels", "pandas", "dask", "optax")
