@@ -28,11 +28,13 @@ _HERE = Path(__file__).resolve().parent
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
 
 import axialmix  # noqa: E402, F401  (float64)
+from fitting.data import read_many  # noqa: E402
+from fitting.fit import fit  # noqa: E402
 from fitting.gridsearch import grid_search, source_flux_grid  # noqa: E402
-from fitting.io import read_many  # noqa: E402
 from fitting.models import four_compartment  # noqa: E402
-from fitting.optimize import Parameter, fit  # noqa: E402
+from fitting.parameters import Parameter  # noqa: E402
 from fitting.report import identifiability_statements, text_table  # noqa: E402
+from fitting.solve import MultiStart, Optimiser  # noqa: E402
 
 K_OUT = 0.8  # 1/s, the examples' design value (examples/make_data.py)
 STARTS = 3
@@ -46,10 +48,12 @@ RATES = ("k_f", "k_r", "k_s")
 def gradient_fits(curve, starts: int):
     """Least-squares multi-start fit, then the MAE polish from its optimum."""
     held = {"k_out": Parameter(K_OUT, vary=False)}
-    sse = fit(four_compartment, curve, held, loss="sse", n_starts=starts, warmup_steps=0)
+    sse = fit(four_compartment, curve, held, loss="sse",
+              multistart=MultiStart(n_starts=starts, warmup_steps=0))
     polish_start = {**held, **{n: Parameter(sse.values[n], min=0.0) for n in RATES}}
-    mae = fit(four_compartment, curve, polish_start, loss="mae", n_starts=1, warmup_steps=0,
-              max_steps=POLISH_STEPS)
+    mae = fit(four_compartment, curve, polish_start, loss="mae",
+              multistart=MultiStart(n_starts=1, warmup_steps=0),
+              optimiser=Optimiser(max_steps=POLISH_STEPS))
     return sse, mae
 
 

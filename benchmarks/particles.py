@@ -49,10 +49,11 @@ def _case_inputs(case: str, steps: int):
 
     if case.startswith("vblender"):
         total = int(float(case.split("_")[1]))
-        network = particles.v_blender(total)
+        network = particles.particle_v_blender(total)
         return network, particles.v_blender_loading(network, "E"), {}
     per_compartment = int(float(case.split("_")[1])) // 250
-    network = particles.axial_radial_grid(50, 5, particles_per_compartment=per_compartment)
+    network = particles.particle_axial_radial_grid(50, 5,
+                                                  particles_per_compartment=per_compartment)
     initial = np.column_stack([network.holdups, np.zeros_like(network.holdups)])
     options = {
         "feed": particles.constant_feed(network, [1.0, 0.0], steps),

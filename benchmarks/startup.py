@@ -10,8 +10,12 @@ Each row is a fresh Python process, timed end to end (wall clock), in this order
 * the same curve with ``--model four-compartment --fix k_out=0.8``: first and second run;
 * the peer: ``scipy.optimize.curve_fit`` of the closed–closed axial dispersion model on the
   same raw curve, ``c(t) = A E(t)`` as ``axialmix fit`` models it by default (amplitude
-  fitted, no dead time or baseline), ``E`` written here in NumPy from its exact eigenvalue
-  series (independent of JAX and of axialmix), started from the moment estimates.
+  fitted, no dead time or baseline), ``E`` written here in NumPy as the Bromwich integral of
+  its transfer function (:data:`PEER_MODEL`, independent of JAX and of axialmix; the
+  eigenvalue series is no use here: its terms cancel to nothing at high Pe), started from
+  the moment estimates. Before anything is timed the peer's E is checked against
+  :func:`axialmix.analytic.closed.exit_age_closed` on the curve's times over the tau and Pe
+  its fit may visit; above 1e-8 of the peak the benchmark stops.
 
 The table gives seconds, the ratio to ``import jax`` and the targets: ADM second run ≤ 3×,
 first run ≤ 8×, four-compartment second run ≤ 5×, ``axialmix --help`` ≤ 1 s. The fitted
@@ -31,41 +35,53 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 CURVE = ROOT / "examples" / "data" / "horizontal.csv"
 
-#: The peer, run as its own process: NumPy closed-closed ADM (eigenvalue series) + curve_fit.
-PEER = r'''
-import sys
+#: The peer's model: the closed-closed E in NumPy (independent of JAX and of axialmix), used by
+#: this benchmark's peer and by the peers of benchmarks/study.py.
+PEER_MODEL = r'''
 import numpy as np
+
+def exit_age(t, tau, peclet, nodes=32):
+    # E(t) of the closed-closed ADM as the Bromwich integral of its transfer function
+    # G(s) = 4 q e^{Pe(1-q)/2} / ((1+q)^2 - (1-q)^2 e^{-q Pe}),  q = sqrt(1 + 4 s tau / Pe)
+    # (MODELS.md section 2). With theta = t / tau and s = Pe (q^2 - 1) / 4, the exponent
+    # s theta + Pe (1-q)/2 = (Pe theta / 4) (q - 1/theta)^2 - Pe (1-theta)^2 / (4 theta) is a
+    # Gaussian about its saddle q = 1/theta, and the poles of G lie on the imaginary q axis:
+    # the line Re q = 1/theta + sqrt(9.2 / (Pe theta)) is integrated by the trapezoidal rule
+    # out to where the Gaussian is e^-40. No term grows like e^{Pe/2}, unlike the eigenvalue
+    # series, whose alternating terms cancel to nothing in double precision at high Pe.
+    theta = np.asarray(t, dtype=float) / tau
+    out = np.zeros(theta.shape)
+    # Below this theta, Pe (1 - theta)^2 / (4 theta) > 1000: E underflows to 0.
+    k = 4000.0
+    live = theta > 2 * peclet / ((2 * peclet + k) + np.sqrt(k * (4 * peclet + k)))
+    th = theta[live][:, None]
+    pe_th = peclet * th
+    offset = np.sqrt(9.2 / pe_th)
+    step = np.sqrt(160.0 / pe_th) / nodes
+    y = np.arange(nodes + 1) * step
+    q = 1.0 / th + offset + 1j * y
+    exponent = 0.25 * pe_th * (offset + 1j * y) ** 2 - peclet * (1.0 - th) ** 2 / (4.0 * th)
+    z = -q * peclet  # Re z < 0: (1+q)^2 - (1-q)^2 e^z = q (4 + Pe (1-q)^2 (e^z - 1) / z)
+    denominator = 4.0 + peclet * (1.0 - q) ** 2 * (np.expm1(z) / z)
+    integrand = (np.exp(exponent) * 2.0 * peclet * q / denominator).real
+    weights = np.ones(nodes + 1)
+    weights[0] = 0.5
+    out[live] = step[:, 0] / np.pi * (integrand @ weights)
+    return out / tau
+'''
+
+#: The peer, run as its own process: the NumPy model above + curve_fit.
+PEER = PEER_MODEL + r'''
+import sys
 from scipy.optimize import curve_fit
-
-def eigenvalues(peclet, count):
-    # Roots of (4 l^2 - Pe^2) sin l = 4 l Pe cos l, the n-th one solving
-    # l - 2 atan(Pe / (2 l)) = (n - 1) pi (monotone, one root in ((n-1) pi, n pi)).
-    shift = np.arange(count) * np.pi
-    low, high = np.maximum(shift, 1e-300), shift + np.pi
-    root = 0.5 * (low + high)
-    for _ in range(60):  # Newton, kept inside the bracket by bisection
-        f = root - 2 * np.arctan(peclet / (2 * root)) - shift
-        low, high = np.where(f < 0, root, low), np.where(f < 0, high, root)
-        step = root - f / (1 + peclet / (root**2 + peclet**2 / 4))
-        inside = (step > low) & (step < high)
-        root = np.where(inside, step, 0.5 * (low + high))
-    return root
-
-def exit_age(t, tau, peclet, count=400):
-    # E(t) = (8/tau) e^{Pe/2} sum (-1)^{n+1} l^2 / (4 l^2 + Pe^2 + 4 Pe)
-    #        exp(-(4 l^2 + Pe^2) theta / (4 Pe)),  theta = t / tau (MODELS.md section 2).
-    theta = np.asarray(t, dtype=float)[:, None] / tau
-    lam = eigenvalues(peclet, count)[None, :]
-    sign = np.where(np.arange(count) % 2 == 0, 1.0, -1.0)[None, :]
-    exponent = peclet / 2 - (4 * lam**2 + peclet**2) * theta / (4 * peclet)
-    terms = sign * lam**2 / (4 * lam**2 + peclet**2 + 4 * peclet) * np.exp(exponent)
-    value = 8 / tau * terms.sum(axis=1)
-    return np.where(theta[:, 0] > 0, value, 0.0)
 
 data = np.loadtxt(sys.argv[1], delimiter=",", comments="#", skiprows=2)
 t, y = data[:, 0], data[:, 1]
@@ -94,6 +110,59 @@ TARGETS = {
     "adm second": (3.0, None),
     "four-compartment second": (5.0, None),
 }
+
+
+#: Largest admitted |E_peer - E_exact| over the peak of E_exact on a curve's sample times.
+PEER_TOLERANCE = 1e-8
+
+
+def peer_model() -> Callable[..., np.ndarray]:
+    """The peer's NumPy ``exit_age(t, tau, peclet)`` (1/time unit) of :data:`PEER_MODEL`."""
+    namespace: dict = {}
+    exec(PEER_MODEL, namespace)
+    return namespace["exit_age"]
+
+
+def check_peer_model(model, cases, label: str = "peer model check") -> float:
+    """Compare the peer's E with axialmix's exact E on every case; refuse to go on if off.
+
+    **Arguments:**
+
+    - `model`: the peer's ``exit_age(t, tau, peclet)``.
+    - `cases`: ``(t, tau, peclet)`` triples (times and tau in one time unit, Pe
+      dimensionless), or ``(t, tau, peclet, exact)`` with the exact E at `t` already known.
+    - `label`: the start of the printed line.
+
+    **Returns:** the worst ``max |E_peer - E_exact| / max E_exact`` over the cases
+    (dimensionless), printed as one line; exits (status 1) above :data:`PEER_TOLERANCE`.
+    """
+    from axialmix.analytic.closed import exit_age_closed
+
+    worst, count = 0.0, 0
+    for case in cases:
+        t, tau, peclet = case[:3]
+        exact = np.asarray(case[3] if len(case) > 3 else exit_age_closed(t, tau, peclet))
+        error = np.max(np.abs(model(t, tau, peclet) - exact)) / np.max(exact)
+        worst = max(worst, float(error)) if np.isfinite(error) else np.inf
+        count += 1
+    verdict = "ok" if worst <= PEER_TOLERANCE else "FAILED: the peers are not timed"
+    print(f"{label}: {count} curves, worst |E_peer - E_exact| / peak = {worst:.2e} "
+          f"(limit {PEER_TOLERANCE:g}) {verdict}", flush=True)
+    if worst > PEER_TOLERANCE:
+        raise SystemExit(1)
+    return worst
+
+
+def check_startup_peer() -> float:
+    """The peer's model on the benchmark curve's times, at its moment estimate of tau times
+    0.5, 1 and 2 and at Pe from 0.1 to 1000 (what its fit may visit), against the exact E."""
+    t, y = np.loadtxt(CURVE, delimiter=",", comments="#", skiprows=2)[:, :2].T
+    density = np.clip(y, 0, None)
+    mean = np.trapezoid(t * density, t) / np.trapezoid(density, t)
+    cases = [(t, mean * factor, peclet) for factor in (0.5, 1.0, 2.0)
+             for peclet in np.geomspace(0.1, 1000.0, 13)]
+    return check_peer_model(peer_model(), cases,
+                            f"peer model check ({CURVE.name}, tau and Pe swept)")
 
 
 def _command_line() -> list[str]:
@@ -166,6 +235,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=1, help="passes (default 1)")
     args = parser.parse_args()
+    check_startup_peer()  # before anything is timed; JAX's import here precedes every timing
     load = os.getloadavg() if hasattr(os, "getloadavg") else None
     print(f"{os.cpu_count()} CPUs; load average before: "
           f"{' '.join(f'{x:.2f}' for x in load) if load else 'unknown'}")

@@ -11,16 +11,24 @@ the records and summary written to a temporary folder):
   curves of every padded length comes first);
 * on a local Dask cluster of two worker processes, timed after each worker has fitted a
   warm-up chunk (the cluster's start is shown apart);
-* the peers, on the first ``--subset`` curves: a loop of ``scipy.optimize.curve_fit`` and a
-  loop of ``lmfit`` (least squares, ``leastsq``) on the same model ``A E(t)``, E the NumPy
-  eigenvalue series of ``benchmarks/startup.py`` (independent of JAX), started from the
-  moment estimates; their intervals are ``value ± t(0.975, n - 3) × standard error``.
+* the peers, on the first ``--subset`` curves: a loop of ``scipy.optimize.curve_fit``, a
+  loop of ``lmfit`` (least squares, ``leastsq``), and the scipy loop shared out over a
+  ``joblib`` pool of ``--workers`` processes (what a user would try next; timed after each
+  process has fitted a warm-up curve, the pool's start shown apart), all on the same model
+  ``A E(t)``, E the NumPy Bromwich integral of ``benchmarks/startup.py``'s peer (independent
+  of JAX), started from the moment estimates; their intervals are
+  ``value ± t(0.975, n - 3) × standard error``.
+
+Before anything is timed, the peers' E is compared with the exact E
+(:func:`axialmix.analytic.closed.exit_age_closed`) at the true tau and Pe on every curve of
+the study; if it is off by more than 1e-8 of the curve's peak anywhere, the benchmark stops.
 
 The table gives curves per second and the ratio to the one-process run, the median and
 95th-percentile relative errors of tau and Pe, and interval coverage (share of curves whose
 95 % interval holds the true value). Run with ``nice``: it loads every core it is given.
 
     python benchmarks/study.py [--curves 10000] [--dask-curves N] [--subset 200] [--chunk 64]
+                               [--workers 2]
 """
 
 from __future__ import annotations
@@ -48,7 +56,7 @@ NOISE = 0.02
 
 
 def synthetic_study(count: int, seed: int):
-    """The curves, true (tau, Pe) per curve."""
+    """The curves, true (tau, Pe) per curve, and the exact E at each curve's times."""
     from axialmix.analytic.closed import exit_age_closed
     from fitting.data import Curve
     from fitting.study.input import Study
@@ -57,15 +65,16 @@ def synthetic_study(count: int, seed: int):
     tau = np.exp(rng.uniform(*np.log(TAU_RANGE), count))
     peclet = np.exp(rng.uniform(*np.log(PECLET_RANGE), count))
     sizes = rng.integers(SAMPLES[0], SAMPLES[1] + 1, count)
-    curves = []
+    curves, exact_values = [], []
     for i in range(count):
         t = np.linspace(0.0, 3.0 * tau[i], sizes[i])
         exact = np.asarray(exit_age_closed(t, tau[i], peclet[i]))
         noisy = exact + NOISE * exact.max() * rng.standard_normal(t.size)
         curves.append(Curve(f"c{i:05d}", t, noisy, time_unit="s"))
+        exact_values.append(exact)
     study = Study(tuple(curves), (), tuple(() for _ in curves), tuple(None for _ in curves),
                   "synthetic")
-    return study, tau, peclet
+    return study, tau, peclet, exact_values
 
 
 def accuracy(tau, peclet, estimates, intervals) -> dict[str, float]:
@@ -143,14 +152,21 @@ def run_dask(plan, study, workers: int):
     return startup, seconds, records
 
 
-def peer_model():
-    """The NumPy closed-closed E(t) of benchmarks/startup.py's peer (its functions only)."""
+def startup_benchmark():
+    """benchmarks/startup.py as a module (its peer model and the check of it)."""
     spec = importlib.util.spec_from_file_location("startup_benchmark", _HERE / "startup.py")
     startup = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(startup)
-    namespace: dict = {}
-    exec(startup.PEER.split("data = np.loadtxt")[0], namespace)  # eigenvalues, exit_age
-    return namespace["exit_age"]
+    return startup
+
+
+def check_peers(study, tau, peclet, exact_values) -> None:
+    """Every peer's E against the exact E at the true parameters of every curve (exits if off)."""
+    startup = startup_benchmark()
+    cases = [(curve.time, tau[i], peclet[i], exact_values[i])
+             for i, curve in enumerate(study.curves)]
+    startup.check_peer_model(startup.peer_model(), cases,
+                             "peer model check (scipy, lmfit and pool peers)")
 
 
 def moment_start(t, y):
@@ -165,19 +181,29 @@ def moment_start(t, y):
     return mean, min(max(peclet, 0.5), 1e4), area
 
 
-def run_scipy(study, subset: int):
+_PEER_MODELS: dict = {}
+
+
+def scipy_loop(curves, model_source: str):
+    """``curve_fit`` of ``A E(t)`` on each ``(t, y)``: estimates and 95 % intervals of tau, Pe.
+
+    The model is built from its source in the calling process (so that a pool's worker
+    processes build it too), once per process.
+    """
     from scipy import stats
     from scipy.optimize import curve_fit
 
-    exit_age = peer_model()
+    if model_source not in _PEER_MODELS:
+        namespace: dict = {}
+        exec(model_source, namespace)
+        _PEER_MODELS[model_source] = namespace["exit_age"]
+    exit_age = _PEER_MODELS[model_source]
 
     def model(t, tau, peclet, amplitude):
         return amplitude * exit_age(t, tau, peclet)
 
     estimates, intervals = [], []
-    began = time.perf_counter()
-    for curve in study.curves[:subset]:
-        t, y = curve.time, curve.value
+    for t, y in curves:
         start = moment_start(t, y)
         try:
             values, covariance = curve_fit(model, t, y, p0=start,
@@ -189,14 +215,44 @@ def run_scipy(study, subset: int):
         estimates.append(values[:2])
         intervals.append([[values[0] - half[0], values[0] + half[0]],
                           [values[1] - half[1], values[1] + half[1]]])
-    return time.perf_counter() - began, np.array(estimates), np.array(intervals)
+    return np.array(estimates).reshape(-1, 2), np.array(intervals).reshape(-1, 2, 2)
+
+
+def run_scipy(study, subset: int):
+    source = startup_benchmark().PEER_MODEL
+    curves = [(c.time, c.value) for c in study.curves[:subset]]
+    scipy_loop(curves[:1], source)  # the model built, scipy loaded
+    began = time.perf_counter()
+    estimates, intervals = scipy_loop(curves, source)
+    return time.perf_counter() - began, estimates, intervals
+
+
+def run_pool(study, subset: int, workers: int):
+    """The scipy loop shared out over a joblib pool of `workers` processes (loky)."""
+    from joblib import Parallel, delayed
+
+    source = startup_benchmark().PEER_MODEL
+    curves = [(c.time, c.value) for c in study.curves[:subset]]
+    pieces = max(1, min(len(curves), 4 * workers))  # a few pieces per process: balance
+    bounds = np.linspace(0, len(curves), pieces + 1).astype(int)
+    with Parallel(n_jobs=workers, backend="loky") as pool:
+        began = time.perf_counter()
+        pool(delayed(scipy_loop)(curves[:1], source) for _ in range(2 * workers))
+        startup = time.perf_counter() - began
+        began = time.perf_counter()
+        parts = pool(delayed(scipy_loop)(curves[a:b], source)
+                     for a, b in zip(bounds[:-1], bounds[1:], strict=True))
+        seconds = time.perf_counter() - began
+    estimates = np.concatenate([p[0] for p in parts])
+    intervals = np.concatenate([p[1] for p in parts])
+    return startup, seconds, estimates, intervals
 
 
 def run_lmfit(study, subset: int):
     import lmfit
     from scipy import stats
 
-    exit_age = peer_model()
+    exit_age = startup_benchmark().peer_model()
 
     def model(t, tau, peclet, amplitude):
         return amplitude * exit_age(t, tau, peclet)
@@ -251,7 +307,8 @@ def main() -> None:
 
     enable_compilation_cache()
     print(f"{os.cpu_count()} CPUs; load average before: {os.getloadavg()[0]:.2f}", flush=True)
-    study, tau, peclet = synthetic_study(args.curves, args.seed)
+    study, tau, peclet, exact_values = synthetic_study(args.curves, args.seed)
+    check_peers(study, tau, peclet, exact_values)  # before anything is timed
     plan = StudyPlan("adm")
     header = (f"{'method':<34}{'curves':>7}{'seconds':>10}{'curves/s':>10}{'ratio':>9}"
               f"{'tau med':>9}{'tau p95':>9}{'Pe med':>9}{'Pe p95':>9}{'cov tau':>8}"
@@ -279,6 +336,11 @@ def main() -> None:
     seconds, estimates, intervals = run_lmfit(study, subset)
     rows.append(line("lmfit loop (leastsq)", subset, seconds, unit,
                      accuracy(tau[:subset], peclet[:subset], estimates, intervals)))
+    print(rows[-1], flush=True)
+    startup, seconds, estimates, intervals = run_pool(study, subset, args.workers)
+    rows.append(line(f"scipy loop, joblib {args.workers} processes", subset, seconds, unit,
+                     accuracy(tau[:subset], peclet[:subset], estimates, intervals))
+                + f"  (+{startup:.1f} s start)")
     print(rows[-1], flush=True)
 
     count = args.dask_curves or args.curves

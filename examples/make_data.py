@@ -83,10 +83,11 @@ def simulated_outflow(k_f: float, k_r: float, k_s: float, seed: int) -> np.ndarr
     **Returns:** the tracer fraction of each sample at :data:`SAMPLE_TIMES`.
     """
     from axialmix.particles.feed import constant_feed
-    from axialmix.particles.presets import four_compartment
+    from axialmix.particles.presets import particle_four_compartment
     from axialmix.particles.simulate import TracerPulse, simulate
 
-    network = four_compartment(k_f, k_r, k_s, K_OUT, particles=PARTICLES, time_step=TIME_STEP)
+    network = particle_four_compartment(k_f, k_r, k_s, K_OUT, particles=PARTICLES,
+                                        time_step=TIME_STEP)
     steps = int(round((SAMPLE_TIMES[-1] + SAMPLE_WINDOW) / TIME_STEP)) + 1
     initial = np.column_stack([network.holdups, np.zeros_like(network.holdups)])
     result = simulate(network, initial, steps, feed=constant_feed(network, [1.0, 0.0], steps),

@@ -624,5 +624,3 @@ def equivalent_dispersion(result: FitResult, length: float = 1.0) -> dict:
         "chain": {"velocity": velocity, "axial_dispersion": dispersion, "peclet": peclet},
     }
 
-
-_crossings, _regions = crossings, regions  # the names of earlier releases

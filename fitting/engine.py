@@ -56,7 +56,7 @@ from fitting.solve import (
 )
 
 __all__ = ["CHUNK", "LANES", "ErrorPlan", "chunk_program", "chunk_shape", "combined_errors",
-           "fit_chunk_arrays", "leverages"]
+           "describe_device", "fit_chunk_arrays", "leverages"]
 
 
 @dataclass(frozen=True)
@@ -436,22 +436,61 @@ CHUNK = {"cpu": 64, "gpu": 4096, "tpu": 4096}
 _GROUP_SAMPLES = 1 << 14
 
 
-def chunk_shape(length: int, device: str | None = None) -> tuple[int, int]:
+#: Device memory a chunk program may use, as a share of what the device reports.
+_MEMORY_SHARE = 0.25
+#: Bytes a vmapped lane holds per padded sample (the model's quadrature nodes with their
+#: tangents, as complex numbers, and the solver's arrays): a generous estimate.
+_BYTES_PER_SAMPLE = 1 << 16
+
+
+def _device_memory() -> int | None:
+    """Bytes of memory the default device reports, or ``None`` (a CPU reports none)."""
+    try:
+        stats = jax.devices()[0].memory_stats() or {}
+    except Exception:  # noqa: BLE001  (a backend without memory statistics)
+        return None
+    limit = stats.get("bytes_limit")
+    return int(limit) if limit else None
+
+
+def chunk_shape(length: int, device: str | None = None,
+                memory: int | None = None) -> tuple[int, int]:
     """``(lanes, chunk size)`` of the chunk programs for curves of padded `length` samples.
 
+    On a CPU: one lane (see :data:`LANES`) and up to :data:`CHUNK` curves a program (fewer
+    for long curves). On an accelerator: as many lanes and curves as a quarter of the
+    device's memory holds at about 64 KiB a padded sample, at most :data:`LANES` and
+    :data:`CHUNK`.
+
     **Arguments:** `length`: the padded number of samples; `device`: ``'cpu'``, ``'gpu'`` or
-    ``'tpu'`` (default: JAX's default backend).
+    ``'tpu'`` (default: JAX's default backend); `memory`: the device's memory in bytes
+    (default: what it reports).
 
     **Returns:** the curves fitted side by side and the curves per program (a multiple of
     the lanes).
     """
     device = device or jax.default_backend()
-    lanes = LANES.get(device, LANES["cpu"])
-    lanes = max(1, min(lanes, _GROUP_SAMPLES // max(length, 1))) if device == "cpu" else lanes
-    size = CHUNK.get(device, CHUNK["cpu"])
+    length = max(int(length), 1)
     if device == "cpu":
-        size = max(lanes, min(size, (_GROUP_SAMPLES * 4) // max(length, 1)))
+        lanes = max(1, min(LANES["cpu"], _GROUP_SAMPLES // length))
+        size = max(lanes, min(CHUNK["cpu"], (_GROUP_SAMPLES * 4) // length))
+        return lanes, size - size % lanes
+    memory = memory if memory is not None else _device_memory()
+    lanes = LANES.get(device, LANES["gpu"])
+    if memory is not None:
+        lanes = max(1, min(lanes, int(_MEMORY_SHARE * memory) // (length * _BYTES_PER_SAMPLE)))
+    size = CHUNK.get(device, CHUNK["gpu"])
     return lanes, max(lanes, size - size % lanes)
+
+
+def describe_device(length: int = 64) -> str:
+    """The device and the chunk programs' shape for curves of padded `length`, in words."""
+    device = jax.devices()[0]
+    lanes, size = chunk_shape(length)
+    memory = _device_memory()
+    held = f", {memory / 2**30:.0f} GiB" if memory else ""
+    return (f"{device.platform} ({device.device_kind}{held}): {size} curves a program, "
+            f"{lanes} side by side")
 
 
 @functools.lru_cache(maxsize=64)

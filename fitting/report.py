@@ -123,7 +123,7 @@ def identifiability_statements(result: FitResult) -> list[str]:
 
     **Arguments:**
 
-    - `result`: a :class:`~fitting.optimize.FitResult`.
+    - `result`: a :class:`~fitting.result.FitResult`.
 
     **Returns:** a list of sentences; the last one summarises.
     """

@@ -7,11 +7,8 @@ A :class:`FitResult` is immutable (a frozen dataclass with read-only arrays), li
 from __future__ import annotations
 
 import functools
-import importlib
 import json
 import math
-import warnings
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -391,21 +388,6 @@ class FitResult:
                 setting = setting.replace(value=value)
             start[name] = setting
         return start
-
-    def identifiability(self):
-        """Deprecated: use :func:`fitting.diagnostics.identifiability` (kept one release)."""
-        warnings.warn("FitResult.identifiability() is deprecated; use "
-                      "fitting.diagnostics.identifiability(result)", DeprecationWarning,
-                      stacklevel=2)
-        return importlib.import_module("fitting.diagnostics").identifiability(self)
-
-    def profile(self, name: str, values: Sequence[float] | None = None, **options: Any):
-        """Deprecated: use :func:`fitting.diagnostics.profile_likelihood` (kept one release)."""
-        warnings.warn("FitResult.profile() is deprecated; use "
-                      "fitting.diagnostics.profile_likelihood(result, name)", DeprecationWarning,
-                      stacklevel=2)
-        return importlib.import_module("fitting.diagnostics").profile_likelihood(
-            self, name, values, **options)
 
     def to_json(self, **kwargs: Any) -> str:
         """:meth:`to_dict` as a JSON string."""

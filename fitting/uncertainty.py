@@ -14,16 +14,13 @@ These linearised errors assume Gaussian noise and a model close to linear over t
 ``'mae'`` loss the numbers are the least-squares approximation at the MAE optimum.
 
 Everything here takes and returns arrays and numbers; identifiability and profiles, which
-need fit results and re-fits, are in :mod:`fitting.diagnostics` (their old names here are
-deprecated aliases kept one release).
+need fit results and re-fits, are functions of :mod:`fitting.diagnostics`.
 """
 
 from __future__ import annotations
 
 import functools
-import importlib
 import math
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -230,17 +227,3 @@ def interval(value: float, half_width: float, setting: Parameter) -> tuple[float
 #: Half-width in ln p beyond which a positive parameter's interval is reported as (0, inf):
 #: a factor of 1e20 either way bounds nothing.
 LOG_INTERVAL_LIMIT = math.log(1e20)
-
-
-#: Names that moved to :mod:`fitting.diagnostics`, kept here one release.
-_MOVED = {"Identifiability", "Profile", "identifiability", "profile_likelihood",
-          "equivalent_dispersion", "_regions", "_crossings", "MAX_LOG_HALF_WIDTH",
-          }
-
-
-def __getattr__(name: str):
-    if name in _MOVED:
-        warnings.warn(f"fitting.uncertainty.{name} moved to fitting.diagnostics.{name}",
-                      DeprecationWarning, stacklevel=2)
-        return getattr(importlib.import_module("fitting.diagnostics"), name)
-    raise AttributeError(f"module 'fitting.uncertainty' has no attribute {name!r}")

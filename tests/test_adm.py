@@ -272,7 +272,7 @@ def test_fit_with_the_finite_volume_model_recovers_exact_parameters():
     # A fit vmaps the model inside the optimiser's while loop (batched predicate): the
     # default resolution dispatch must work there. Noise-free data from the exact solution;
     # the FV solver's own error (< 1e-3 of the peak) bounds the parameter error.
-    from fitting.optimize import fit
+    from fitting.fit import fit
 
     t = np.linspace(2.0, 120.0, 30)
     observed = np.asarray(exit_age_closed(t, 40.0, 25.0))

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from axialmix.analytic import exit_age_closed
-from fitting.optimize import fit_many
+from fitting.fit import fit_many
 
 # 200 fits take about 20 s of CPU but over a minute on a busy two-core machine.
 pytestmark = pytest.mark.slow

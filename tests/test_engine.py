@@ -112,8 +112,11 @@ def test_combined_error_sizes_and_leverages_match_the_numpy_estimate():
 
 def test_chunk_shapes_follow_the_device_and_the_curve_length():
     assert engine.chunk_shape(64, "cpu") == (1, 64)
-    lanes, size = engine.chunk_shape(64, "gpu")
-    assert lanes >= 64 and size % lanes == 0 and size >= 1024
+    lanes, size = engine.chunk_shape(64, "gpu", memory=139 * 2**30)  # an H200
+    assert lanes == engine.LANES["gpu"] and size % lanes == 0 and size >= 1024
+    # A small accelerator: the lanes follow its memory (a quarter of it at 64 KiB a sample).
+    assert engine.chunk_shape(1 << 16, "gpu", memory=16 * 2**30) == (1, engine.CHUNK["gpu"])
+    assert engine.chunk_shape(256, "gpu", memory=2**30)[0] == 2**30 // 4 // (256 * 65536)
     # A million-sample curve runs alone: its memory is one curve's.
     assert engine.chunk_shape(1 << 20, "cpu") == (1, 1)
 

@@ -1,4 +1,4 @@
-"""The ``axialmix fit`` command (fitting.fitcli through fitting.cli.main)."""
+"""The ``axialmix fit`` command (fitting.cli.fit through fitting.cli.main)."""
 
 from __future__ import annotations
 
@@ -117,9 +117,9 @@ def test_relative_errors_option_runs_the_weighted_fit_of_the_library(tmp_path, c
     import numpy as np
 
     from axialmix.analytic import exit_age_closed
-    from fitting.io import read_rtd_csv
+    from fitting.data import read_rtd_csv
+    from fitting.fit import fit
     from fitting.measurement import measured
-    from fitting.optimize import fit
 
     rng = np.random.default_rng(5)
     t = np.linspace(3.0, 90.0, 15)

@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from fitting.io import Curve, DataError, DataWarning, read_many, read_rtd_csv
+from fitting.data import Curve, DataError, DataWarning, read_many, read_rtd_csv
 
 
 def _write(tmp_path, text, name="curve.csv"):

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 
 from axialmix.analytic import exit_age_closed, exit_age_open, exit_age_tanks
+from fitting.fit import fit, fit_many
+from fitting.losses import mean_absolute_error, sum_of_squares
 from fitting.models import MODELS, custom_model, get_model
-from fitting.objective import mean_absolute_error, sum_of_squares
-from fitting.optimize import Parameter, Parameters, fit, fit_many
+from fitting.parameters import Parameter, Parameters
 from fitting.uncertainty import effective_degrees_of_freedom
 
 TAU = 10.0
@@ -124,7 +125,7 @@ def test_minimum_on_the_four_compartment_mirror_line_is_confirmed_by_the_full_he
     from pathlib import Path
 
     from axialmix.network import four_compartment_exit_age
-    from fitting.io import read_rtd_csv
+    from fitting.data import read_rtd_csv
 
     curve = read_rtd_csv(Path(__file__).parents[1] / "examples" / "data" / "horizontal.csv")
     result = fit("four-compartment", curve, {"k_out": Parameter(0.8, vary=False)})

@@ -9,16 +9,19 @@ import pytest
 from scipy import stats
 
 from axialmix.network import four_compartment_exit_age
-from fitting.models import custom_model
-from fitting.optimize import Parameter, fit, fit_many
-from fitting.uncertainty import (
-    _regions,
-    effective_degrees_of_freedom,
+from fitting.diagnostics import (
     equivalent_dispersion,
-    gauss_newton_uncertainty,
     identifiability,
-    information_criteria,
     profile_likelihood,
+    regions,
+)
+from fitting.fit import fit, fit_many
+from fitting.models import custom_model
+from fitting.parameters import Parameter
+from fitting.uncertainty import (
+    effective_degrees_of_freedom,
+    gauss_newton_uncertainty,
+    information_criteria,
 )
 
 TIME = np.linspace(0.0, 20.0, 30)
@@ -250,13 +253,13 @@ def _check_diagnosis(result):
 def test_profile_regions_of_a_double_well_are_both_found():
     # SSE = (x² - 1)² + 0.1 lies below 0.2 where x² is within sqrt(0.1) of 1: two ranges.
     x = np.linspace(-2.0, 2.0, 4001)
-    regions = _regions(x, (x**2 - 1) ** 2 + 0.1, 0.2)
+    found = regions(x, (x**2 - 1) ** 2 + 0.1, 0.2)
     inner, outer = math.sqrt(1 - math.sqrt(0.1)), math.sqrt(1 + math.sqrt(0.1))
-    np.testing.assert_allclose(np.array(regions), [[-outer, -inner], [inner, outer]],
+    np.testing.assert_allclose(np.array(found), [[-outer, -inner], [inner, outer]],
                                atol=1e-5)
     # Open ends where the profile stays below the threshold up to the grid's edge.
-    assert _regions(x, x**2, 5.0) == ((None, None),)
-    assert _regions(x, x, 0.0) == ((None, 0.0),)
+    assert regions(x, x**2, 5.0) == ((None, None),)
+    assert regions(x, x, 0.0) == ((None, 0.0),)
 
 
 def test_rtd_of_the_four_compartment_model_is_unchanged_by_swapping_k_f_and_k_s_when_tied():
@@ -323,7 +326,8 @@ def test_four_compartment_with_k_r_free_leaves_a_combination_undetermined():
 
 def test_equivalent_dispersion_of_a_four_compartment_fit(four_compartment_tied):
     tied = four_compartment_tied
-    equivalent = equivalent_dispersion(tied, length=0.31)
+    with pytest.warns(DeprecationWarning, match="equivalent_adm"):
+        equivalent = equivalent_dispersion(tied, length=0.31)
     k_f, k_r = tied.values["k_f"], tied.values["k_r"]
     assert equivalent["chain"]["velocity"] == pytest.approx((k_f - k_r) * 0.31 / 2, abs=1e-15)
     assert equivalent["chain"]["axial_dispersion"] == pytest.approx((k_f + k_r) * 0.31**2 / 8)

@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 from jax.scipy.special import gammaln
 
+from fitting.data import read_many
+from fitting.fit import fit
 from fitting.gridsearch import grid_search, source_flux_grid
-from fitting.io import read_many
 from fitting.models import custom_model, four_compartment
-from fitting.optimize import Parameter, fit
+from fitting.parameters import Parameter
 
 
 def _gamma_exit_age(t, p):
