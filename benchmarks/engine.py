@@ -38,7 +38,7 @@ from fitting.study.batch import StudyPlan, plan_model
 chunk, count = %(chunk)d, %(count)d
 engine.CHUNK["cpu"] = chunk
 engine.CHUNK["gpu"] = chunk
-study, tau, peclet = benchmark_study.synthetic_study(count, 2024)
+study, tau, peclet, _ = benchmark_study.synthetic_study(count, 2024)
 plan = StudyPlan("adm")
 model = plan_model(plan)
 options = dict(loss="sse", errors=plan.errors, multistart=MultiStart(n_starts=plan.starts))
@@ -63,7 +63,7 @@ sys.path.pop(0)
 from fitting.study.batch import StudyPlan, StudyRun
 from fitting.solve import enable_compilation_cache
 enable_compilation_cache()
-study, tau, peclet = benchmark_study.synthetic_study(%(count)d, 7)
+study, tau, peclet, _ = benchmark_study.synthetic_study(%(count)d, 7)
 plan = StudyPlan("adm")
 with tempfile.TemporaryDirectory() as folder:
     run = StudyRun(plan, study, folder, 256)
