@@ -32,7 +32,7 @@ Design (chosen for accuracy at every Peclet number at a small, predictable cost)
   each level that some batch element needs once for the whole batch (``lax.cond`` skips the
   others). Passing ``config=SolverConfig.for_peclet(max_peclet)`` fixes one level (smooth
   in Pe everywhere; the default curve jumps by up to ~1e-4 of the peak at a level edge).
-  Default accuracy: max |E - E_exact| <= 1e-3 of the peak (typically 1e-5 to 6e-4) for
+  Default accuracy: max ``|E - E_exact|`` <= 1e-3 of the peak (typically 1e-5 to 6e-4) for
   Pe in :data:`VERIFIED_PECLET_RANGE` (2e-3 to 3500, measured); outside it the defaults
   refuse a concrete Pe (ValueError naming peclet) and return NaN for a traced one.
 * **Derivatives**: the Peclet sensitivities of the node curves come from one complex-step
