@@ -12,8 +12,8 @@ model's hook (:meth:`fitting.result.FitResult.equivalent_adm`), its uncertainty 
 
 Every number carries its unit: parameters in tables as ``tau (min)``, in JSON with a
 ``unit`` field; physical quantities with the unit in their key (``dispersion_m2_per_s``,
-``mean_residence_time_min``). With the measurement model (:mod:`fitting.measurement`) the
-plot shows the data as ``(c - b) / A``, i.e. E normalised by the fitted amplitude.
+``mean_residence_time_min``). The plot shows data, model and residuals in the units of the
+data, with the headline parameters and their 95 % intervals written on it.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from axialmix.analytic import peclet_from_variance_ratio as _peclet_from_varianc
 from fitting.diagnostics import ModelComparison, identifiability
 from fitting.drawing import FigureSpec, draw
 from fitting.gridsearch import GridResult
-from fitting.measurement import MeasuredModel, observed_response
+from fitting.measurement import MEASUREMENT_PARAMETERS, MeasuredModel
 from fitting.models import get_model
 from fitting.physical import physical_quantities, quantity_unit
 from fitting.result import FitResult
@@ -46,6 +46,7 @@ __all__ = [
     "plot_fit",
     "plot_times",
     "fit_figure",
+    "headline_parameters",
     "render_fit_png",
     "summary_rows",
     "summary_table",
@@ -610,12 +611,44 @@ def plot_times(time) -> np.ndarray:
     return np.linspace(0.0, float(np.asarray(time)[-1]) * 1.05, PLOT_POINTS + 1)[1:]
 
 
+def _interval_text(label: str, value: float | None, interval, unit: str) -> str:
+    """``tau = 7.029 s, 95 % [6.21, 7.85]`` (the interval left out when there is none)."""
+    if value is None:
+        return f"{label}: -"
+    unit_text = "" if unit in ("", "1") else f" {unit}"
+    if interval is None or interval[0] is None or interval[1] is None:
+        return f"{label} = {_number(value, 4)}{unit_text}"
+    return (f"{label} = {_number(value, 4)}{unit_text}, "
+            f"95 % [{_number(interval[0], 3)}, {_number(interval[1], 3)}]")
+
+
+#: Equivalent-ADM quantities a fit plot states beside the model's own parameters.
+_HEADLINE_QUANTITIES = ("tau", "Pe", "mean residence time")
+
+
+def headline_parameters(result: FitResult) -> list[str]:
+    """The lines a fit plot states: each free model parameter (the measurement model's
+    amplitude, dead time and baseline left out) and the equivalent ADM's ``tau`` and ``Pe``
+    where they are not parameters, each with its 95 % interval and unit."""
+    units = parameter_units(result)
+    lines = [_interval_text(name, result.values[name], result.ci95.get(name), units[name])
+             for name in result.free_names if name not in MEASUREMENT_PARAMETERS]
+    for quantity in _derived(result, None).values():
+        if quantity.label in _HEADLINE_QUANTITIES:
+            lines.append(_interval_text(f"{quantity.label} (equivalent ADM)", quantity.value,
+                                        quantity.ci95, quantity.unit))
+    return lines
+
+
 def fit_figure(result: FitResult, grid: GridResult | None = None) -> FigureSpec:
     """The arrays and words of a fit's two-panel plot (see :func:`fitting.drawing.draw_fit`).
 
-    A curve of more than :data:`MAX_DRAWN_POINTS` samples is drawn with every k-th sample
-    (the legend and the residual axis say so); the fit used them all. Values that are not
-    finite are left out of the lines (NaN).
+    Data, model and residuals are drawn in the units of the data (a raw signal stays a raw
+    signal: the model is the measurement model's prediction ``A·(E ⊗ u)(t − t_d) + b``), and
+    the headline parameters with their 95 % intervals (:func:`headline_parameters`) are
+    written on the figure. A curve of more than :data:`MAX_DRAWN_POINTS` samples is drawn
+    with every k-th sample (the legend and the residual axis say so); the fit used them all.
+    Values that are not finite are left out of the lines (NaN).
 
     **Arguments:** as :func:`plot_fit`, without the path.
 
@@ -623,42 +656,36 @@ def fit_figure(result: FitResult, grid: GridResult | None = None) -> FigureSpec:
     """
     every, note = _drawn(len(result.time))
     time = np.asarray(result.time, float)[every]
-    # With the measurement model the data are shown as (c - b) / A: E normalised by the
-    # fitted amplitude (F for a step inlet, E * u for a measured one).
-    shown, label = observed_response(result.model, result.values, result.curve)
     fine = plot_times(result.time)
     model = result.model
-
-    def normalised(values):
-        curve = model.evaluate(fine, values)
-        if isinstance(model, MeasuredModel):
-            curve = (curve - float(values["baseline"])) / float(values["amplitude"])
-        return _plottable(curve)
-
     unit = result.time_unit
-    if label in ("E", "E * u"):
-        ylabel = f"{label} (1/{unit})" + (" = (c - b) / A" if label != "E" or
-                                          isinstance(model, MeasuredModel) else "")
-    elif label == "F":
-        ylabel = "F = (c - b) / A"
+    if result.curve.normalised:
+        value_label = f"E (1/{unit})"
+        residual_unit = f"1/{unit}"
+    elif result.curve.value_unit:
+        value_label = f"signal ({result.curve.value_unit})"
+        residual_unit = result.curve.value_unit
     else:
-        ylabel = (f"signal ({result.curve.value_unit})" if result.curve.value_unit
-                  else "signal")
-    signal_unit = f" ({result.curve.value_unit})" if result.curve.value_unit else ""
+        value_label = "signal (unit of the data)"
+        residual_unit = "unit of the data"
+    lines = headline_parameters(result)
+    if result.error_model is not None:
+        lines.append(f"errors: {result.error_model.kind}")
     return {
         "time": time,
-        "observed": _plottable(shown[every]),
+        "observed": _plottable(np.asarray(result.observed)[every]),
         "fine": fine,
-        "curve": normalised(result.values),
-        "grid_curve": None if grid is None else normalised(grid.values),
+        "curve": _plottable(model.evaluate(fine, result.values)),
+        "grid_curve": None if grid is None else _plottable(model.evaluate(fine, grid.values)),
         "residual": _plottable(np.asarray(result.predicted)[every]
                                - np.asarray(result.observed)[every]),
         "data_label": f"data{note}",
         "fit_label": f"fit ({model.name}, {result.loss_name} = {result.loss:.3g})",
         "grid_label": "" if grid is None else f"grid search ({grid.loss_name} = {grid.loss:.3g})",
-        "ylabel": ylabel,
+        "ylabel": value_label,
         "title": f"{result.name or 'curve'}: model {model.name}",
-        "residual_label": (f"residual{signal_unit}\n(model - data)"
+        "annotation": "\n".join(lines),
+        "residual_label": (f"residual ({residual_unit})\nmodel - data"
                            + ("\n(points drawn as above)" if note else "")),
         "xlabel": f"time ({unit})",
         "thinned": bool(note),
