@@ -48,6 +48,7 @@ __all__ = [
     "fit_figure",
     "headline_parameters",
     "render_fit_png",
+    "solver_accuracy",
     "summary_rows",
     "summary_table",
     "text_table",
@@ -274,6 +275,55 @@ def _derived(result: FitResult, length_m: float | None) -> dict[str, Any]:
             and not (key.startswith("mean_residence_time") and q.value == tau)}
 
 
+#: Models solved by finite volumes: their fits state the solver's accuracy.
+FINITE_VOLUME_MODELS = ("adm-fv",)
+
+
+def solver_accuracy(result: FitResult) -> dict[str, Any] | None:
+    """The finite-volume solver's accuracy at a fit's values, or None for another model.
+
+    Renders :func:`axialmix.adm.error_estimate` (the difference to a solve on a refined
+    grid) for the fitted ``tau`` and ``peclet`` at the curve's sample times, for the inlet
+    the fit used; with the measurement model the error is also given in the signal's unit
+    (times the fitted amplitude).
+
+    **Arguments:** `result`: a fit.
+
+    **Returns:** :meth:`axialmix.adm.FVErrorEstimate.to_dict` with ``unit`` and, for a
+    measured model, ``max_error_signal`` and ``signal_unit``; None when the model is not
+    solved by finite volumes or the estimate cannot be made.
+    """
+    from axialmix import adm
+
+    model = result.model
+    base = model.base if isinstance(model, MeasuredModel) else model
+    if base is None or base.name not in FINITE_VOLUME_MODELS:
+        return None
+    values = result.values
+    time = np.asarray(result.time, float)
+    kind, extra = "exit_age", {}
+    unit = f"1/{result.time_unit}"
+    if isinstance(model, MeasuredModel):
+        time = time - float(values.get("dead_time", 0.0))
+        if model.inlet.kind == "step":
+            kind, unit = "step", "1"
+        elif model.inlet.kind != "pulse":
+            kind, unit = "inlet", "1"
+            extra = {"inlet_times": np.asarray(model.inlet.times, float),
+                     "inlet_values": np.asarray(model.inlet.values, float)}
+    try:
+        estimate = adm.error_estimate(time, float(values["tau"]), float(values["peclet"]),
+                                      response=kind, **extra)
+    except ValueError:
+        return None  # outside the verified range: the fit already says so
+    record = {**estimate.to_dict(), "unit": unit}
+    if isinstance(model, MeasuredModel):
+        signal = result.curve.value_unit or "signal"
+        record["max_error_signal"] = float(estimate.max_error) * abs(float(values["amplitude"]))
+        record["signal_unit"] = signal
+    return record
+
+
 def fit_table(result: FitResult, grid: GridResult | None = None,
               length_m: float | None = None) -> str:
     """The parameter table of one fit, with the grid search beside it when given.
@@ -317,6 +367,10 @@ def fit_table(result: FitResult, grid: GridResult | None = None,
     if result.error_model is not None:
         rows.append(["errors", result.error_model.kind, "", ""]
                     + ([""] if grid is not None else []))
+    accuracy = solver_accuracy(result)
+    if accuracy is not None:
+        rows.append(["FV solver error", f"{_number(accuracy['relative_error'], 2)} of peak",
+                     "", "refined grid"] + ([""] if grid is not None else []))
     rows.append(["loss (" + result.loss_name + ")", _number(result.loss, 5), "", ""]
                 + ([_number(grid.loss, 5)] if grid is not None else []))
     rows.append(["evaluations", f"{result.n_evaluations:,}", "", ""]
@@ -359,7 +413,8 @@ def fit_record(
     (:meth:`fitting.residuals.LackOfFit.to_dict`), ``equivalent_adm`` (models with that hook;
     units in its keys), ``physical`` (the same quantities with ``value``, ``stderr``,
     ``ci95`` and ``unit``: delta method), ``measurement`` (the inlet signal, for a measured
-    model) and ``grid_search`` when one was run.
+    model), ``solver_accuracy`` for a finite-volume model (:func:`solver_accuracy`) and
+    ``grid_search`` when one was run.
     """
     base = result.to_dict()
     units = parameter_units(result)
@@ -400,6 +455,9 @@ def fit_record(
         record["equivalent_adm"] = equivalent
         record["physical"] = {key: quantity.to_dict() for key, quantity in
                               physical_quantities(result, length_m).items()}
+    accuracy = solver_accuracy(result)
+    if accuracy is not None:
+        record["solver_accuracy"] = accuracy
     if grid is not None:
         record["grid_search"] = grid.to_dict()
     return record
