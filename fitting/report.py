@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from axialmix._files import write_atomic, write_csv, write_json
+from axialmix.adm import error_estimate as _fv_error_estimate
 from axialmix.analytic import peclet_from_variance_ratio as _peclet_from_variance_ratio
 from fitting.diagnostics import ModelComparison, identifiability
 from fitting.drawing import FigureSpec, draw
@@ -293,8 +294,6 @@ def solver_accuracy(result: FitResult) -> dict[str, Any] | None:
     measured model, ``max_error_signal`` and ``signal_unit``; None when the model is not
     solved by finite volumes or the estimate cannot be made.
     """
-    from axialmix import adm
-
     model = result.model
     base = model.base if isinstance(model, MeasuredModel) else model
     if base is None or base.name not in FINITE_VOLUME_MODELS:
@@ -312,7 +311,7 @@ def solver_accuracy(result: FitResult) -> dict[str, Any] | None:
             extra = {"inlet_times": np.asarray(model.inlet.times, float),
                      "inlet_values": np.asarray(model.inlet.values, float)}
     try:
-        estimate = adm.error_estimate(time, float(values["tau"]), float(values["peclet"]),
+        estimate = _fv_error_estimate(time, float(values["tau"]), float(values["peclet"]),
                                       response=kind, **extra)
     except ValueError:
         return None  # outside the verified range: the fit already says so
