@@ -29,8 +29,9 @@ __all__ = ["FigureSpec", "draw", "draw_fit", "serve", "start_worker", "stop_work
 
 #: The keys of a figure: ``time``, ``observed``, ``fine``, ``curve``, ``grid_curve`` (or
 #: ``None``), ``residual`` (float arrays); ``data_label``, ``fit_label``, ``grid_label``,
-#: ``ylabel``, ``title``, ``residual_label``, ``xlabel`` (strings); ``thinned`` (bool: the
-#: samples are every k-th of a long curve, drawn smaller).
+#: ``ylabel``, ``title``, ``annotation`` (the headline parameters with their intervals, one a
+#: line, written on the figure), ``residual_label``, ``xlabel`` (strings); ``thinned`` (bool:
+#: the samples are every k-th of a long curve, drawn smaller).
 FigureSpec = dict[str, Any]
 
 _HEADER = struct.Struct("<Q")
@@ -38,7 +39,8 @@ _REPLY = struct.Struct("<BQ")
 
 
 def draw_fit(spec: FigureSpec) -> bytes:
-    """Draw the two-panel fit plot (data and model above, residuals below) as PNG bytes.
+    """Draw the two-panel fit plot (data and model above with the headline parameters written
+    beside them, residuals below, all in the units of the data) as PNG bytes.
 
     **Arguments:** `spec`: a :data:`FigureSpec`.
 
@@ -62,7 +64,11 @@ def draw_fit(spec: FigureSpec) -> bytes:
                  label=spec["grid_label"])
     top.set_ylabel(spec["ylabel"])
     top.set_title(spec["title"], fontsize=10)
-    top.legend(fontsize=8)
+    top.legend(fontsize=8, loc="upper right")
+    if spec["annotation"]:
+        top.text(0.98, 0.80, spec["annotation"], transform=top.transAxes, fontsize=8,
+                 ha="right", va="top", multialignment="left", linespacing=1.4,
+                 bbox={"boxstyle": "round", "facecolor": "white", "edgecolor": "0.7"})
     bottom.axhline(0.0, color="grey", linewidth=0.8)
     bottom.plot(spec["time"], spec["residual"], "o-", color="tab:blue",
                 markersize=1.5 if thinned else 4, linewidth=0.5 if thinned else 1.0)

@@ -12,8 +12,8 @@ model's hook (:meth:`fitting.result.FitResult.equivalent_adm`), its uncertainty 
 
 Every number carries its unit: parameters in tables as ``tau (min)``, in JSON with a
 ``unit`` field; physical quantities with the unit in their key (``dispersion_m2_per_s``,
-``mean_residence_time_min``). With the measurement model (:mod:`fitting.measurement`) the
-plot shows the data as ``(c - b) / A``, i.e. E normalised by the fitted amplitude.
+``mean_residence_time_min``). The plot shows data, model and residuals in the units of the
+data, with the headline parameters and their 95 % intervals written on it.
 """
 
 from __future__ import annotations
@@ -27,11 +27,12 @@ from typing import Any
 import numpy as np
 
 from axialmix._files import write_atomic, write_csv, write_json
+from axialmix.adm import error_estimate as _fv_error_estimate
 from axialmix.analytic import peclet_from_variance_ratio as _peclet_from_variance_ratio
 from fitting.diagnostics import ModelComparison, identifiability
 from fitting.drawing import FigureSpec, draw
 from fitting.gridsearch import GridResult
-from fitting.measurement import MeasuredModel, observed_response
+from fitting.measurement import MEASUREMENT_PARAMETERS, MeasuredModel
 from fitting.models import get_model
 from fitting.physical import physical_quantities, quantity_unit
 from fitting.result import FitResult
@@ -46,7 +47,9 @@ __all__ = [
     "plot_fit",
     "plot_times",
     "fit_figure",
+    "headline_parameters",
     "render_fit_png",
+    "solver_accuracy",
     "summary_rows",
     "summary_table",
     "text_table",
@@ -273,6 +276,53 @@ def _derived(result: FitResult, length_m: float | None) -> dict[str, Any]:
             and not (key.startswith("mean_residence_time") and q.value == tau)}
 
 
+#: Models solved by finite volumes: their fits state the solver's accuracy.
+FINITE_VOLUME_MODELS = ("adm-fv",)
+
+
+def solver_accuracy(result: FitResult) -> dict[str, Any] | None:
+    """The finite-volume solver's accuracy at a fit's values, or None for another model.
+
+    Renders :func:`axialmix.adm.error_estimate` (the difference to a solve on a refined
+    grid) for the fitted ``tau`` and ``peclet`` at the curve's sample times, for the inlet
+    the fit used; with the measurement model the error is also given in the signal's unit
+    (times the fitted amplitude).
+
+    **Arguments:** `result`: a fit.
+
+    **Returns:** :meth:`axialmix.adm.FVErrorEstimate.to_dict` with ``unit`` and, for a
+    measured model, ``max_error_signal`` and ``signal_unit``; None when the model is not
+    solved by finite volumes or the estimate cannot be made.
+    """
+    model = result.model
+    base = model.base if isinstance(model, MeasuredModel) else model
+    if base is None or base.name not in FINITE_VOLUME_MODELS:
+        return None
+    values = result.values
+    time = np.asarray(result.time, float)
+    kind, extra = "exit_age", {}
+    unit = f"1/{result.time_unit}"
+    if isinstance(model, MeasuredModel):
+        time = time - float(values.get("dead_time", 0.0))
+        if model.inlet.kind == "step":
+            kind, unit = "step", "1"
+        elif model.inlet.kind != "pulse":
+            kind, unit = "inlet", "1"
+            extra = {"inlet_times": np.asarray(model.inlet.times, float),
+                     "inlet_values": np.asarray(model.inlet.values, float)}
+    try:
+        estimate = _fv_error_estimate(time, float(values["tau"]), float(values["peclet"]),
+                                      response=kind, **extra)
+    except ValueError:
+        return None  # outside the verified range: the fit already says so
+    record = {**estimate.to_dict(), "unit": unit}
+    if isinstance(model, MeasuredModel):
+        signal = result.curve.value_unit or "signal"
+        record["max_error_signal"] = float(estimate.max_error) * abs(float(values["amplitude"]))
+        record["signal_unit"] = signal
+    return record
+
+
 def fit_table(result: FitResult, grid: GridResult | None = None,
               length_m: float | None = None) -> str:
     """The parameter table of one fit, with the grid search beside it when given.
@@ -316,6 +366,10 @@ def fit_table(result: FitResult, grid: GridResult | None = None,
     if result.error_model is not None:
         rows.append(["errors", result.error_model.kind, "", ""]
                     + ([""] if grid is not None else []))
+    accuracy = solver_accuracy(result)
+    if accuracy is not None:
+        rows.append(["FV solver error", f"{_number(accuracy['relative_error'], 2)} of peak",
+                     "", "refined grid"] + ([""] if grid is not None else []))
     rows.append(["loss (" + result.loss_name + ")", _number(result.loss, 5), "", ""]
                 + ([_number(grid.loss, 5)] if grid is not None else []))
     rows.append(["evaluations", f"{result.n_evaluations:,}", "", ""]
@@ -358,7 +412,8 @@ def fit_record(
     (:meth:`fitting.residuals.LackOfFit.to_dict`), ``equivalent_adm`` (models with that hook;
     units in its keys), ``physical`` (the same quantities with ``value``, ``stderr``,
     ``ci95`` and ``unit``: delta method), ``measurement`` (the inlet signal, for a measured
-    model) and ``grid_search`` when one was run.
+    model), ``solver_accuracy`` for a finite-volume model (:func:`solver_accuracy`) and
+    ``grid_search`` when one was run.
     """
     base = result.to_dict()
     units = parameter_units(result)
@@ -399,6 +454,9 @@ def fit_record(
         record["equivalent_adm"] = equivalent
         record["physical"] = {key: quantity.to_dict() for key, quantity in
                               physical_quantities(result, length_m).items()}
+    accuracy = solver_accuracy(result)
+    if accuracy is not None:
+        record["solver_accuracy"] = accuracy
     if grid is not None:
         record["grid_search"] = grid.to_dict()
     return record
@@ -610,12 +668,44 @@ def plot_times(time) -> np.ndarray:
     return np.linspace(0.0, float(np.asarray(time)[-1]) * 1.05, PLOT_POINTS + 1)[1:]
 
 
+def _interval_text(label: str, value: float | None, interval, unit: str) -> str:
+    """``tau = 7.029 s, 95 % [6.21, 7.85]`` (the interval left out when there is none)."""
+    if value is None:
+        return f"{label}: -"
+    unit_text = "" if unit in ("", "1") else f" {unit}"
+    if interval is None or interval[0] is None or interval[1] is None:
+        return f"{label} = {_number(value, 4)}{unit_text}"
+    return (f"{label} = {_number(value, 4)}{unit_text}, "
+            f"95 % [{_number(interval[0], 3)}, {_number(interval[1], 3)}]")
+
+
+#: Equivalent-ADM quantities a fit plot states beside the model's own parameters.
+_HEADLINE_QUANTITIES = ("tau", "Pe", "mean residence time")
+
+
+def headline_parameters(result: FitResult) -> list[str]:
+    """The lines a fit plot states: each free model parameter (the measurement model's
+    amplitude, dead time and baseline left out) and the equivalent ADM's ``tau`` and ``Pe``
+    where they are not parameters, each with its 95 % interval and unit."""
+    units = parameter_units(result)
+    lines = [_interval_text(name, result.values[name], result.ci95.get(name), units[name])
+             for name in result.free_names if name not in MEASUREMENT_PARAMETERS]
+    for quantity in _derived(result, None).values():
+        if quantity.label in _HEADLINE_QUANTITIES:
+            lines.append(_interval_text(f"{quantity.label} (equivalent ADM)", quantity.value,
+                                        quantity.ci95, quantity.unit))
+    return lines
+
+
 def fit_figure(result: FitResult, grid: GridResult | None = None) -> FigureSpec:
     """The arrays and words of a fit's two-panel plot (see :func:`fitting.drawing.draw_fit`).
 
-    A curve of more than :data:`MAX_DRAWN_POINTS` samples is drawn with every k-th sample
-    (the legend and the residual axis say so); the fit used them all. Values that are not
-    finite are left out of the lines (NaN).
+    Data, model and residuals are drawn in the units of the data (a raw signal stays a raw
+    signal: the model is the measurement model's prediction ``A·(E ⊗ u)(t − t_d) + b``), and
+    the headline parameters with their 95 % intervals (:func:`headline_parameters`) are
+    written on the figure. A curve of more than :data:`MAX_DRAWN_POINTS` samples is drawn
+    with every k-th sample (the legend and the residual axis say so); the fit used them all.
+    Values that are not finite are left out of the lines (NaN).
 
     **Arguments:** as :func:`plot_fit`, without the path.
 
@@ -623,42 +713,36 @@ def fit_figure(result: FitResult, grid: GridResult | None = None) -> FigureSpec:
     """
     every, note = _drawn(len(result.time))
     time = np.asarray(result.time, float)[every]
-    # With the measurement model the data are shown as (c - b) / A: E normalised by the
-    # fitted amplitude (F for a step inlet, E * u for a measured one).
-    shown, label = observed_response(result.model, result.values, result.curve)
     fine = plot_times(result.time)
     model = result.model
-
-    def normalised(values):
-        curve = model.evaluate(fine, values)
-        if isinstance(model, MeasuredModel):
-            curve = (curve - float(values["baseline"])) / float(values["amplitude"])
-        return _plottable(curve)
-
     unit = result.time_unit
-    if label in ("E", "E * u"):
-        ylabel = f"{label} (1/{unit})" + (" = (c - b) / A" if label != "E" or
-                                          isinstance(model, MeasuredModel) else "")
-    elif label == "F":
-        ylabel = "F = (c - b) / A"
+    if result.curve.normalised:
+        value_label = f"E (1/{unit})"
+        residual_unit = f"1/{unit}"
+    elif result.curve.value_unit:
+        value_label = f"signal ({result.curve.value_unit})"
+        residual_unit = result.curve.value_unit
     else:
-        ylabel = (f"signal ({result.curve.value_unit})" if result.curve.value_unit
-                  else "signal")
-    signal_unit = f" ({result.curve.value_unit})" if result.curve.value_unit else ""
+        value_label = "signal (unit of the data)"
+        residual_unit = "unit of the data"
+    lines = headline_parameters(result)
+    if result.error_model is not None:
+        lines.append(f"errors: {result.error_model.kind}")
     return {
         "time": time,
-        "observed": _plottable(shown[every]),
+        "observed": _plottable(np.asarray(result.observed)[every]),
         "fine": fine,
-        "curve": normalised(result.values),
-        "grid_curve": None if grid is None else normalised(grid.values),
+        "curve": _plottable(model.evaluate(fine, result.values)),
+        "grid_curve": None if grid is None else _plottable(model.evaluate(fine, grid.values)),
         "residual": _plottable(np.asarray(result.predicted)[every]
                                - np.asarray(result.observed)[every]),
         "data_label": f"data{note}",
         "fit_label": f"fit ({model.name}, {result.loss_name} = {result.loss:.3g})",
         "grid_label": "" if grid is None else f"grid search ({grid.loss_name} = {grid.loss:.3g})",
-        "ylabel": ylabel,
+        "ylabel": value_label,
         "title": f"{result.name or 'curve'}: model {model.name}",
-        "residual_label": (f"residual{signal_unit}\n(model - data)"
+        "annotation": "\n".join(lines),
+        "residual_label": (f"residual ({residual_unit})\nmodel - data"
                            + ("\n(points drawn as above)" if note else "")),
         "xlabel": f"time ({unit})",
         "thinned": bool(note),

@@ -15,6 +15,7 @@ def _spec(**changes):
         "curve": np.exp(-fine / 3) / 3, "grid_curve": None,
         "residual": 1e-3 * np.sin(time), "data_label": "data", "fit_label": "fit (tanks)",
         "grid_label": "", "ylabel": "E (1/s)", "title": "curve: model tanks",
+        "annotation": "tau = 3 s, 95 % [2.9, 3.1]\nn = 1",
         "residual_label": "residual", "xlabel": "time (s)", "thinned": False,
     }
     spec.update(changes)

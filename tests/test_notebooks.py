@@ -1,4 +1,8 @@
-"""Every notebook in notebooks/ runs top to bottom and is stored without outputs.
+"""Every notebook in notebooks/ runs top to bottom, and is stored with the outputs of one
+clean run that belong to its code.
+
+The outputs are those of the documentation build (``docs/store_notebook_outputs.py`` copies
+them in), so that a reader of the repository sees the figures without running anything.
 
 Notebooks read ``AXIALMIX_FULL`` from the environment: unset (the default here) they run at
 small sizes so the suite stays quick; ``AXIALMIX_FULL=1`` runs the full-size studies.
@@ -6,6 +10,7 @@ small sizes so the suite stays quick; ``AXIALMIX_FULL=1`` runs the full-size stu
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from pathlib import Path
 
@@ -21,13 +26,30 @@ def test_there_are_notebooks():
     assert NOTEBOOKS, f"no notebooks found in {NOTEBOOK_DIR}"
 
 
+def _code_digest(nb) -> str:
+    spec = importlib.util.spec_from_file_location(
+        "store_notebook_outputs", NOTEBOOK_DIR.parent / "docs" / "store_notebook_outputs.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.code_digest(nb)
+
+
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
-def test_notebook_is_stored_without_outputs(path):
+def test_notebook_is_stored_with_the_outputs_of_one_clean_run_of_its_code(path):
     nb = nbformat.read(path, as_version=4)
-    for cell in nb.cells:
-        if cell.cell_type == "code":
-            assert not cell.outputs, f"{path.name}: a code cell has stored outputs"
-            assert cell.execution_count is None, f"{path.name}: stored execution count"
+    code = [cell for cell in nb.cells if cell.cell_type == "code"]
+    # One run top to bottom: execution counts 1, 2, ... in order, no error output.
+    assert [cell.execution_count for cell in code] == list(range(1, len(code) + 1)), (
+        f"{path.name}: stored outputs are not those of one run top to bottom; build the "
+        "documentation and run python docs/store_notebook_outputs.py")
+    for cell in code:
+        assert all(output.get("output_type") != "error" for output in cell.outputs), path.name
+    assert any(output.get("output_type") == "display_data" and "image/png" in output["data"]
+               for cell in code for output in cell.outputs), f"{path.name}: no stored figure"
+    # The outputs belong to the code: the code cells have not changed since they were stored.
+    assert nb.metadata.get("axialmix", {}).get("code_digest") == _code_digest(nb), (
+        f"{path.name}: its code changed after its outputs were stored; build the "
+        "documentation and run python docs/store_notebook_outputs.py")
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])

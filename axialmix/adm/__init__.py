@@ -32,9 +32,12 @@ Design (chosen for accuracy at every Peclet number at a small, predictable cost)
   each level that some batch element needs once for the whole batch (``lax.cond`` skips the
   others). Passing ``config=SolverConfig.for_peclet(max_peclet)`` fixes one level (smooth
   in Pe everywhere; the default curve jumps by up to ~1e-4 of the peak at a level edge).
-  Default accuracy: max |E - E_exact| <= 1e-3 of the peak (typically 1e-5 to 6e-4) for
+  Default accuracy: max ``|E - E_exact|`` <= 1e-3 of the peak (typically 1e-5 to 6e-4) for
   Pe in :data:`VERIFIED_PECLET_RANGE` (2e-3 to 3500, measured); outside it the defaults
   refuse a concrete Pe (ValueError naming peclet) and return NaN for a traced one.
+* **Accuracy of a result**: :func:`error_estimate` returns a curve with the estimate of its
+  error from the solver's own convergence, the difference to the same solve on a refined
+  grid (twice the cells, half the steps; :class:`FVErrorEstimate`).
 * **Derivatives**: the Peclet sensitivities of the node curves come from one complex-step
   solve (Pe + i h, h = 1e-20 Pe; exact to round-off, no cancellation) inside a custom JVP,
   so reverse mode stores no solver states and a gradient costs about 1.5-2.5 forward
@@ -43,16 +46,20 @@ Design (chosen for accuracy at every Peclet number at a small, predictable cost)
   they agree with finite differences of the same solver to round-off.
 """
 
+from axialmix.adm._accuracy import FVErrorEstimate, error_estimate, refined_config
 from axialmix.adm._config import VERIFIED_PECLET_RANGE, SolverConfig
 from axialmix.adm._outlet import dimensionless_parameters, exit_age, outlet_response, step_response
 from axialmix.adm._profiles import profiles
 
 __all__ = [
+    "FVErrorEstimate",
     "SolverConfig",
     "VERIFIED_PECLET_RANGE",
     "dimensionless_parameters",
+    "error_estimate",
     "exit_age",
     "outlet_response",
     "profiles",
+    "refined_config",
     "step_response",
 ]

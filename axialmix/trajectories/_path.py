@@ -88,7 +88,7 @@ def expected_noisy_path_length(
 
     **Arguments:**
 
-    - `chord_length`: noise-free chord length |d|, m (a scalar used for every step, or one
+    - `chord_length`: noise-free chord length ``|d|``, m (a scalar used for every step, or one
       value per step).
     - `noise_std`: σ, standard deviation of the noise per coordinate, m.
     - `n_steps`: number of chords (used when `chord_length` is a scalar).

@@ -23,7 +23,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         _COMMAND,
         help="analysis of variance of a response over process factors (a study table)",
-        description=__doc__.split("\n\n")[1],
+        description=__doc__.split("\n\n")[1].replace("``", ""),
     )
     parser.add_argument("table", help="CSV table, one row per run, header naming the columns")
     parser.add_argument("--response", required=True, help="the column to analyse")

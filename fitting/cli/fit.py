@@ -131,6 +131,10 @@ WRITE_GRACE = 1.0
 class InputError(Exception):
     """Bad command-line input; the message is one line, without the program prefix."""
 
+#: Blender lengths (m) accepted without a word; outside, --length gets a warning (a length
+#: in centimetres or millimetres by mistake gives a D_z off by 1e4 or 1e6).
+LENGTH_RANGE_M = (0.02, 10.0)
+
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Register the ``fit`` sub-command on an argparse sub-parser collection.
@@ -145,7 +149,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         "fit",
         help="fit a residence-time model to RTD curves (CSV files or folders)",
         description="Fit a residence-time model to measured RTD curves; report values, "
-        "standard errors, 95 %% intervals and what the data determine.",
+        "standard errors, 95 % intervals and what the data determine.",
     )
     parser.add_argument("inputs", nargs="+", metavar="FILE_OR_FOLDER",
                         help="CSV files (time, concentration) or folders of them (*.csv, "
@@ -183,7 +187,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--decimal", choices=("auto", ".", ","), default="auto",
                         help="decimal separator of the files (default: detected)")
     parser.add_argument("--time-column", default=None, metavar="NAME|INDEX",
-                        help="the time column by name or 0-based index (default: recognised)")
+                        help="the time column by name or 0-based index (default: recognised). "
+                        "Its unit is read from its header name: 't [min]', 'time (s)', "
+                        "'time_min' (s, ms, min, h); seconds when the header names none")
     parser.add_argument("--value-column", default=None, metavar="NAME|INDEX",
                         help="the concentration column by name or 0-based index (default: "
                         "recognised, or the second of two columns)")
@@ -734,6 +740,10 @@ def run(args: argparse.Namespace) -> int:
                              f"with --errors absolute (its default), not {args.errors}")
         if args.length is not None and not (math.isfinite(args.length) and args.length > 0):
             raise InputError(f"--length: must be a positive number of metres, got {args.length}")
+        if args.length is not None and not (LENGTH_RANGE_M[0] <= args.length <= LENGTH_RANGE_M[1]):
+            print(f"axialmix fit: warning: --length {args.length:g} m is outside "
+                  f"{LENGTH_RANGE_M[0]:g} to {LENGTH_RANGE_M[1]:g} m, unusual for a blender: "
+                  "is it in metres?", file=sys.stderr)
         out = Path(args.out)
         _check_out(out)
         from fitting.measurement import Inlet, measured

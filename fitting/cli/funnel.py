@@ -89,6 +89,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="disturbance magnitudes, comma-separated (magnitude unit)")
     parser.add_argument("--magnitude-unit", default="%",
                         help="unit of the magnitudes and deviations (default %%)")
+    parser.add_argument("--limit", type=float, default=5.0,
+                        help="the specification: the largest outlet deviation allowed "
+                        "(magnitude unit, default 5); the plot draws where it is reached")
     parser.add_argument("--json", metavar="OUT", help="write the funnel as JSON to OUT")
     parser.add_argument("--png", metavar="OUT", help="draw the funnel plot to OUT (PNG)")
     return parser
@@ -298,6 +301,8 @@ def run(args: argparse.Namespace) -> int:
         magnitudes = numbers("--magnitudes", args.magnitudes)
         if any(d <= 0 for d in durations):
             raise OptionError("--durations must be positive")
+        if not (math.isfinite(args.limit) and args.limit > 0):
+            raise OptionError(f"--limit must be a positive number, got {args.limit:g}")
         check_output("--json", args.json)
         check_output("--png", args.png)
         fitted, description = rtd_from_options(args)
@@ -330,7 +335,11 @@ def run(args: argparse.Namespace) -> int:
     if args.png is not None:
         from axialmix.line import plot_funnel
 
-        write_plot_png(args.png, lambda ax: plot_funnel(result, ax=ax), (6, 4))
+        title = (f"Funnel of {description['model']}: largest outlet deviation "
+                 f"({args.magnitude_unit})")
+        write_plot_png(args.png, lambda ax: plot_funnel(result, ax=ax, rtd=unit,
+                                                        limit=args.limit, title=title),
+                       (7, 4.5))
     return _exits.OK
 
 

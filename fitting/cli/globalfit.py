@@ -27,7 +27,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         _COMMAND,
         help="joint fit of a study: factor laws, shared parameters",
-        description=__doc__.split("\n\n")[1],
+        description=__doc__.split("\n\n")[1].replace("``", ""),
     )
     parser.add_argument("table", help="long-format CSV: curve id, time, signal, factor columns")
     parser.add_argument("--curve-column", required=True, help="the column naming each curve")
