@@ -9,6 +9,18 @@ only NumPy (and deeptime, from the same extra, for the Markov tests).
 
 from ._config import BladedMixer, Material, PaddleSection, RunSettings, rayleigh_time
 from ._engine import DEMEngine, DEMRun, run_dem
+from ._learn import (
+    LearnedNetwork,
+    MarkovTest,
+    axial_cells,
+    block_count_matrices,
+    cell_length_limit,
+    count_matrix,
+    learn_network,
+    markov_test,
+    rates_from_counts,
+    sequences_from_particle_events,
+)
 from ._loader import DEMUnavailable, dem_available, lammps_module
 
 __all__ = [
@@ -16,11 +28,21 @@ __all__ = [
     "DEMEngine",
     "DEMRun",
     "DEMUnavailable",
+    "LearnedNetwork",
+    "MarkovTest",
     "Material",
     "PaddleSection",
     "RunSettings",
+    "axial_cells",
+    "block_count_matrices",
+    "cell_length_limit",
+    "count_matrix",
     "dem_available",
     "lammps_module",
+    "learn_network",
+    "markov_test",
+    "rates_from_counts",
     "rayleigh_time",
     "run_dem",
+    "sequences_from_particle_events",
 ]

@@ -95,6 +95,55 @@ class DEMRun:
             self.steps, self.interrupted, self.settle_cpu_seconds,
         )
 
+    def save(self, path) -> None:
+        """Write the run to a NumPy ``.npz`` file (geometry and settings as their fields)."""
+        import json
+
+        def fields(module):
+            out = {}
+            for name in module.__dataclass_fields__:
+                value = getattr(module, name)
+                out[name] = fields(value) if hasattr(value, "__dataclass_fields__") else value
+            return out
+
+        meta = {
+            "kind": type(self.geometry).__name__,
+            "geometry": fields(self.geometry),
+            "settings": fields(self.settings),
+            "time_step": self.time_step,
+            "cpu_seconds": self.cpu_seconds,
+            "settle_cpu_seconds": self.settle_cpu_seconds,
+            "steps": self.steps,
+            "interrupted": self.interrupted,
+        }
+        with open(path, "wb") as handle:
+            np.savez(handle, meta=json.dumps(meta), times=self.times, positions=self.positions,
+                     velocities=self.velocities, species=self.species)
+
+    @classmethod
+    def load(cls, path) -> DEMRun:
+        """Read a run written by :meth:`save`. Raises ``ValueError`` naming the file if unreadable."""
+        import json
+
+        from ._config import Material
+
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                meta = json.loads(str(data["meta"]))
+                arrays = {k: data[k] for k in ("times", "positions", "velocities", "species")}
+            kind = {"BladedMixer": BladedMixer, "PaddleSection": PaddleSection}[meta["kind"]]
+            g = dict(meta["geometry"])
+            g["material"] = Material(**g["material"])
+            g["particles"] = tuple(g["particles"])
+            geometry = kind(**g)
+            settings = RunSettings(**meta["settings"])
+        except (OSError, KeyError, ValueError, TypeError) as err:
+            raise ValueError(f"{path}: not a DEM run file ({err}).") from None
+        return cls(geometry, settings, float(meta["time_step"]), arrays["times"],
+                   arrays["positions"], arrays["velocities"], arrays["species"],
+                   float(meta["cpu_seconds"]), int(meta["steps"]), bool(meta["interrupted"]),
+                   float(meta["settle_cpu_seconds"]))
+
     def trajectories(self, species: int | None = None) -> list:
         """Every sphere's track as an :class:`axialmix.trajectories.Trajectory` (``z`` unwrapped).
 
@@ -193,19 +242,29 @@ class DEMEngine:
             self._lmp.command(
                 f"region fill{k} cylinder z 0 0 {inner:.10g} {a:.10g} {b:.10g} side in units box"
             )
-            self._lmp.command(
-                f"region low{k} block INF INF INF {g.fill_height():.10g} INF INF units box"
-            )
+            # Below the impeller first; the space above it (the spheres fall into the bed
+            # while it settles) only when the bed does not fit below.
+            h = g.fill_height()
+            self._lmp.command(f"region low{k} block INF INF INF {h:.10g} INF INF units box")
+            self._lmp.command(f"region high{k} block INF INF {-h:.10g} INF INF INF units box")
+            self._lmp.command(f"region clear{k} union 2 low{k} high{k} units box")
             self._lmp.command(f"region ins{k} intersect 2 fill{k} low{k} units box")
+            self._lmp.command(f"region all{k} intersect 2 fill{k} clear{k} units box")
             before = self._lmp.get_natoms()
             self._lmp.command(
                 f"create_atoms 1 random {int(n)} {seed + k} ins{k} overlap {1.02 * d:.10g} "
                 "maxtry 1000 units box"
             )
             made = self._lmp.get_natoms() - before
+            if made < n:
+                self._lmp.command(
+                    f"create_atoms 1 random {int(n - made)} {seed + 1000 + k} all{k} overlap "
+                    f"{1.02 * d:.10g} maxtry 1000 units box"
+                )
+                made = self._lmp.get_natoms() - before
             if made != n:
                 raise ValueError(
-                    f"only {made} of {n} spheres of species {k} fit below the impeller; "
+                    f"only {made} of {n} spheres of species {k} fit clear of the impeller; "
                     "use fewer or smaller spheres."
                 )
             counts.append(int(n))
