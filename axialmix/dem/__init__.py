@@ -7,8 +7,25 @@ The learning, partition and analysis functions work on recorded cell sequences a
 only NumPy (and deeptime, from the same extra, for the Markov tests).
 """
 
+from ._analysis import (
+    DEMTransport,
+    Partition,
+    TracerSpreading,
+    dem_transport,
+    flux_partition,
+    region_counts,
+    tracer_spreading,
+    velocity_partition,
+)
 from ._config import BladedMixer, Material, PaddleSection, RunSettings, rayleigh_time
 from ._engine import DEMEngine, DEMRun, run_dem
+from ._hybrid import (
+    CompositionErrors,
+    HybridRun,
+    composition_errors,
+    run_hybrid,
+    twin_tracer_counts,
+)
 from ._learn import (
     LearnedNetwork,
     MarkovTest,
@@ -24,6 +41,19 @@ from ._learn import (
 from ._loader import DEMUnavailable, dem_available, lammps_module
 
 __all__ = [
+    "CompositionErrors",
+    "DEMTransport",
+    "HybridRun",
+    "Partition",
+    "TracerSpreading",
+    "composition_errors",
+    "dem_transport",
+    "flux_partition",
+    "region_counts",
+    "run_hybrid",
+    "tracer_spreading",
+    "twin_tracer_counts",
+    "velocity_partition",
     "BladedMixer",
     "DEMEngine",
     "DEMRun",

@@ -228,17 +228,18 @@ class DEMEngine:
     def _place(self, seed: int) -> None:
         g = self.geometry
         d = g.diameter
-        n_species = len(g.particles)
         inner = g.radius - 0.6 * d
         zmin = 0.6 * d if not g.periodic else 0.0
         zmax = g.length - (0.6 * d if not g.periodic else 0.0)
         counts = []
+        # Species k fills the axial slab of its share of the spheres, in species order.
+        bounds = np.concatenate([[0], np.cumsum(g.particles)]) / sum(g.particles)
         for k, n in enumerate(g.particles):
             if n == 0:
                 counts.append(0)
                 continue
-            a = zmin + (zmax - zmin) * k / n_species
-            b = zmin + (zmax - zmin) * (k + 1) / n_species
+            a = zmin + (zmax - zmin) * bounds[k]
+            b = zmin + (zmax - zmin) * bounds[k + 1]
             self._lmp.command(
                 f"region fill{k} cylinder z 0 0 {inner:.10g} {a:.10g} {b:.10g} side in units box"
             )
@@ -271,7 +272,7 @@ class DEMEngine:
         self._lmp.command(f"set type 1 diameter {d:.10g}")
         self._lmp.command(f"set type 1 density {g.material.density:.10g}")
         # Atom ids are given in creation order: species k holds the next particles[k] ids.
-        self.species = np.repeat(np.arange(n_species), counts)
+        self.species = np.repeat(np.arange(len(g.particles)), counts)
 
     @property
     def n_particles(self) -> int:

@@ -1,0 +1,239 @@
+"""What a recorded DEM run says: transport (v, D_z, Pe), tracer spreading, and partitions.
+
+* :func:`dem_transport`: the DEM tracks go through :mod:`axialmix.trajectories` like PEPT
+  tracks: the mean axial velocity, the drift-corrected mean-square displacement pooled over
+  the spheres, ``D_z`` fitted on its linear part, and the apparent ``D_z(lag) = MSD / (2 lag)``
+  at chosen lags (it depends on the lag where the motion has memory, such as blade passage).
+* :func:`tracer_spreading`: spheres in chosen cells at a start frame are a tracer; their
+  distribution over the cells later, in the DEM and as a learned network predicts it
+  (``p(t) = p(0) exp(Q t)``), with the DEM's own noise floor from a second, equivalent tracer.
+* :func:`flux_partition` (the source's partition method I, its §7.6): the net count change of
+  every species in every region per interval, ``(N(i, t + dt) - N(i, t)) / dt``; the regions
+  whose flux varies most over time (standard deviation) go to DEM.
+* :func:`velocity_partition` (method II, §7.7): the variance of the spheres' velocities in
+  each region over the run; the regions of high variance go to DEM.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from ._learn import LearnedNetwork, axial_cells
+
+__all__ = [
+    "DEMTransport",
+    "Partition",
+    "TracerSpreading",
+    "dem_transport",
+    "flux_partition",
+    "region_counts",
+    "tracer_spreading",
+    "velocity_partition",
+]
+
+
+@dataclass(frozen=True)
+class DEMTransport:
+    """Axial transport of a DEM run from its tracks (SI units).
+
+    **Fields:** `velocity` mean axial velocity (m/s); `dispersion` D_z fitted on the linear
+    part of the pooled MSD (m²/s) and its `window` (s); `lags` (s) and `lag_dispersion` the
+    apparent ``MSD / (2 lag)`` there (m²/s); `peclet` ``v L / D_z`` for `blender_length` (m).
+    """
+
+    velocity: float
+    dispersion: float
+    window: tuple[float, float]
+    lags: np.ndarray
+    lag_dispersion: np.ndarray
+    blender_length: float
+    peclet: float
+
+
+def dem_transport(run, lags=(0.05, 0.1, 0.25, 0.5, 1.0, 2.0), blender_length: float = 0.74
+                  ) -> DEMTransport:
+    """v, D_z and Pe of a DEM run through :mod:`axialmix.trajectories`.
+
+    **Arguments:**
+
+    - `run`: a :class:`axialmix.dem.DEMRun` (``z`` unwrapped for a periodic section).
+    - `lags`: lags (s) at which the apparent ``D_z(lag)`` is reported (rounded to frames).
+    - `blender_length`: length for the Peclet number, m (0.74 m: blender 1 of MODELS.md §1).
+
+    **Returns:** a :class:`DEMTransport`.
+    """
+    from ..analytic import peclet_from_physical
+    from ..trajectories import fit_dispersion_coefficient, pooled_mean_square_displacement
+
+    tracks = run.trajectories()
+    z = run.positions[:, :, 2].astype(float)
+    duration = float(run.times[-1] - run.times[0])
+    velocity = float(np.mean(z[-1] - z[0]) / duration)
+    msd = pooled_mean_square_displacement(tracks, drift_velocity=velocity,
+                                          max_lag_time=max(max(lags), duration / 10))
+    fit = fit_dispersion_coefficient(msd)
+    lags = np.asarray(lags, float)
+    at = np.interp(lags, msd.lag_time, msd.msd, left=np.nan, right=np.nan) / (2 * lags)
+    return DEMTransport(
+        velocity=velocity,
+        dispersion=float(fit.dispersion_coefficient),
+        window=(float(fit.window_start), float(fit.window_end)),
+        lags=lags,
+        lag_dispersion=at,
+        blender_length=float(blender_length),
+        peclet=float(peclet_from_physical(abs(velocity), fit.dispersion_coefficient,
+                                          blender_length)),
+    )
+
+
+@dataclass(frozen=True)
+class TracerSpreading:
+    """A tracer's distribution over cells in the DEM and as a network predicts it.
+
+    **Fields:** `times` after the start (s); `dem` and `predicted` ``(times, cells)`` tracer
+    fractions; `twin` the second tracer's fractions (shifted to the first's start);
+    `error` mean over cells of ``|dem - predicted|`` at each time; `floor` the same between
+    the two DEM tracers (the DEM's own noise); both in tracer fraction.
+    """
+
+    times: np.ndarray
+    dem: np.ndarray
+    predicted: np.ndarray
+    twin: np.ndarray
+    error: np.ndarray
+    floor: np.ndarray
+
+    @property
+    def ratio(self) -> float:
+        """Mean error over the mean noise floor."""
+        return float(self.error.mean() / self.floor.mean())
+
+
+def tracer_spreading(cells: np.ndarray, learned: LearnedNetwork, frame_interval: float,
+                     start: int, delays: tuple[int, ...], shift: int) -> TracerSpreading:
+    """Compare a DEM tracer with the learned network's prediction, on a ring of cells.
+
+    **Arguments:**
+
+    - `cells`: ``(frames, particles)`` cell of every sphere (the network's cells).
+    - `learned`: the :class:`LearnedNetwork` (from other frames of the run).
+    - `frame_interval`: s.
+    - `start`: frame at which the spheres in cell 0 become the tracer; the twin tracer is
+      the spheres in cell `shift` (equivalent by the section's periodicity), its cells
+      shifted back by `shift`.
+    - `delays`: frames after `start` to compare.
+
+    **Returns:** a :class:`TracerSpreading`.
+    """
+    n = learned.n_cells
+    first = cells[start] == 0
+    second = cells[start] == shift
+    delays = np.asarray(delays)
+    later = cells[start + delays]
+    dem = np.stack([np.bincount(c[first], minlength=n) for c in later]) / first.sum()
+    twin = np.stack([np.bincount((c[second] - shift) % n, minlength=n) for c in later])
+    twin = twin / second.sum()
+    p0 = np.zeros(n)
+    p0[0] = 1.0
+    predicted = np.stack([p0 @ scipy.linalg.expm(learned.rates * d * frame_interval)
+                          for d in delays])
+    return TracerSpreading(
+        times=delays * frame_interval, dem=dem, predicted=predicted, twin=twin,
+        error=np.abs(dem - predicted).mean(axis=1), floor=np.abs(dem - twin).mean(axis=1),
+    )
+
+
+def region_counts(run, n_regions: int) -> np.ndarray:
+    """Spheres of each species in each of `n_regions` equal axial regions per frame.
+
+    **Returns:** ``(frames, regions, species)`` integer array.
+    """
+    cells = axial_cells(run.positions[:, :, 2], run.geometry.length, n_regions,
+                        periodic=run.geometry.periodic)
+    keys = cells * run.n_species + run.species[None, :]
+    counts = np.stack([np.bincount(k, minlength=n_regions * run.n_species) for k in keys])
+    return counts.reshape(run.n_frames, n_regions, run.n_species)
+
+
+@dataclass(frozen=True)
+class Partition:
+    """A partition of the regions between DEM and compartments.
+
+    **Fields:** `method` ("flux" or "velocity"); `measure` ``(regions, species)`` for the
+    flux method (standard deviation of the net flux, particles/s) or ``(regions,)`` for the
+    velocity method (velocity variance, m²/s²); `score` ``(regions,)`` the value ranked;
+    `dem_regions` the regions recommended for DEM (0-based, ascending).
+    """
+
+    method: str
+    measure: np.ndarray
+    score: np.ndarray
+    dem_regions: tuple[int, ...]
+
+    def table(self) -> str:
+        """The partition as a text table."""
+        lines = [f"partition by {self.method}: DEM in regions "
+                 + ", ".join(str(i + 1) for i in self.dem_regions)]
+        for i, s in enumerate(self.score):
+            mark = "DEM" if i in self.dem_regions else "compartment"
+            extra = ("  " + " ".join(f"{m:8.3f}" for m in np.atleast_1d(self.measure[i]))
+                     if self.measure.ndim == 2 else "")
+            lines.append(f"region {i + 1:2d}  {s:10.4g}{extra}  {mark}")
+        return "\n".join(lines)
+
+
+def _choose(score: np.ndarray, n_dem: int | None) -> tuple[int, ...]:
+    if n_dem is None:
+        chosen = np.nonzero(score > score.mean())[0]  # above the mean over regions
+    else:
+        if not 0 < n_dem <= score.size:
+            raise ValueError(f"n_dem must be between 1 and {score.size}, got {n_dem}.")
+        chosen = np.sort(np.argsort(score)[::-1][:n_dem])
+    return tuple(int(i) for i in chosen)
+
+
+def flux_partition(run, n_regions: int = 10, interval: float = 0.5,
+                   n_dem: int | None = None) -> Partition:
+    """The source's partition method I: regions whose net particle flux varies most go to DEM.
+
+    **Arguments:**
+
+    - `run`: a :class:`axialmix.dem.DEMRun`.
+    - `n_regions`: equal axial regions (the source: 10 of 0.05 m).
+    - `interval`: time between the counts whose differences are the fluxes, s.
+    - `n_dem`: regions to put in DEM (the highest scores); default: every region whose score
+      is above the mean.
+
+    The score of a region is the larger of its species' flux standard deviations.
+    **Returns:** a :class:`Partition`.
+    """
+    every = max(1, round(interval / run.frame_interval))
+    counts = region_counts(run, n_regions)[::every].astype(float)
+    if counts.shape[0] < 3:
+        raise ValueError("the run is too short for fluxes over that interval (3 counts needed).")
+    flux = np.diff(counts, axis=0) / (every * run.frame_interval)
+    sd = flux.std(axis=0, ddof=1)
+    score = sd.max(axis=1)
+    return Partition("flux", sd, score, _choose(score, n_dem))
+
+
+def velocity_partition(run, n_regions: int = 10, n_dem: int | None = None) -> Partition:
+    """The source's partition method II: regions of high particle-velocity variance go to DEM.
+
+    **Arguments:** as :func:`flux_partition`; the score of a region is the variance of the
+    velocities (sum over the three components) of the spheres in it, over all frames, m²/s².
+
+    **Returns:** a :class:`Partition`.
+    """
+    cells = axial_cells(run.positions[:, :, 2], run.geometry.length, n_regions,
+                        periodic=run.geometry.periodic).ravel()
+    v = run.velocities.reshape(-1, 3).astype(float)
+    count = np.bincount(cells, minlength=n_regions).astype(float)
+    mean = np.stack([np.bincount(cells, v[:, k], n_regions) for k in range(3)], 1)
+    mean /= np.maximum(count, 1)[:, None]
+    square = np.stack([np.bincount(cells, v[:, k] ** 2, n_regions) for k in range(3)], 1)
+    variance = (square / np.maximum(count, 1)[:, None] - mean**2).sum(axis=1)
+    return Partition("velocity", variance, variance, _choose(variance, n_dem))

@@ -1,0 +1,126 @@
+"""The hybrid DEM + compartment run of the source's bladed mixer against full DEM.
+
+    python benchmarks/dem.py [--quick] [--out DIR]
+
+Needs the ``dem`` extra. Steps (MODELS.md §9):
+
+1. a learning DEM run of the mixer (its own seed): partitions by method I (flux variability)
+   and II (velocity variance) of ten axial regions, and the region network learned from its
+   cell sequences (lag 0.1 s, bootstrap blocks of one blade passage, 0.5 s);
+2. the reference: a full DEM run from the same kind of start with another seed, and its
+   noise floor from two equivalent halves of every species;
+3. hybrid runs (DEM at the impeller end, the count engine elsewhere) for both partitions and
+   over DEM shares and exchange intervals, each compared with the reference at the end.
+
+The mixer is the source's geometry (radius 0.1 m, length 0.5 m; see axialmix.dem.BladedMixer)
+with 1,500 + 1,500 spheres of 8.2 mm: the same 5 % solid fill as the source's 5,000 + 5,000
+of 5.5 mm at a third of the cost (the two CPU cores of this machine are shared). CPU seconds
+are process time of each part, measured in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from axialmix.dem import BladedMixer, RunSettings, axial_cells, learn_network, run_dem
+from axialmix.dem._analysis import flux_partition, region_counts, velocity_partition
+from axialmix.dem._hybrid import composition_errors, run_hybrid, twin_tracer_counts
+
+SOURCE_7_5 = [(1.60, 3.47), (26.69, 20.45), (2.42, 10.89), (7.39, 2.11), (12.87, 9.60),
+              (11.39, 9.38), (10.60, 11.24), (1.18, 9.90), (1.32, 2.95), (0.29, 3.49)]
+SOURCE_7_6 = [(3.99, 7.35), (5.17, 3.95), (15.79, 10.60), (2.29, 5.13), (11.83, 3.26),
+              (8.15, 5.31), (9.45, 3.38), (1.60, 1.09), (1.46, 2.02), (3.86, 3.43)]
+N_REGIONS = 10
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="600 spheres, runs of 1-1.5 s")
+    parser.add_argument("--out", default=None, help="write results.json here")
+    args = parser.parse_args()
+    if args.quick:
+        mixer = BladedMixer(particles=(300, 300), diameter=0.0082)
+        learn_s, ref_s = 1.5, 1.0
+    else:
+        mixer = BladedMixer(particles=(1500, 1500), diameter=0.0082)
+        learn_s, ref_s = 3.0, 6.0
+    learn_settings = RunSettings(duration=learn_s, record_interval=0.05, settle_time=0.5, seed=11)
+    ref_settings = RunSettings(duration=ref_s, record_interval=0.05, settle_time=0.5, seed=12)
+    clock = time.time()
+    learning = run_dem(mixer, learn_settings)
+    print(f"learning run: {learning.n_particles} spheres, {learn_s} s, dt {learning.time_step:.3g}"
+          f" s, CPU {learning.cpu_seconds:.1f} s", flush=True)
+    part1 = flux_partition(learning, N_REGIONS, interval=0.25)
+    part2 = velocity_partition(learning, N_REGIONS)
+    print(part1.table())
+    print(part2.table(), flush=True)
+    cells = axial_cells(learning.positions[:, :, 2], mixer.length, N_REGIONS)
+    lag = 2
+    learned = learn_network(cells, N_REGIONS, learning.frame_interval, lag,
+                            block_frames=round(0.5 / learning.frame_interval),
+                            centres=(np.arange(N_REGIONS) + 0.5) * mixer.length / N_REGIONS)
+    reference = run_dem(mixer, ref_settings)
+    print(f"reference full DEM: CPU {reference.cpu_seconds:.1f} s", flush=True)
+    ref_counts = region_counts(reference, N_REGIONS)
+    a, b = twin_tracer_counts(reference, N_REGIONS)
+    floor = composition_errors(a[-1], b[-1])
+    print(f"DEM noise floor (two equivalent halves, end of run): {floor.average:.2f} %")
+
+    def hybrid(n_dem, interval, label):
+        settings = RunSettings(duration=ref_s, record_interval=0.05 if interval <= 0.05
+                               else interval, settle_time=0.5, seed=13)
+        run = run_hybrid(mixer, learned, ref_counts[0], n_dem, settings,
+                         exchange_interval=interval, seed=n_dem)
+        errors = composition_errors(ref_counts[-1], run.counts[-1])
+        share = n_dem / N_REGIONS
+        total = run.dem_cpu_seconds + run.compartment_cpu_seconds
+        print(f"{label}: DEM regions 1-{n_dem} ({share:.0%}), exchange {interval} s: error "
+              f"{errors.average:.2f} %, DEM CPU {run.dem_cpu_seconds:.1f} s, compartment CPU "
+              f"{run.compartment_cpu_seconds:.2f} s ({run.compartment_share:.1%}), saving "
+              f"{1 - total / reference.cpu_seconds:.0%}", flush=True)
+        return run, errors
+
+    results = {"mixer": {"particles": list(mixer.particles), "diameter_m": mixer.diameter,
+                         "rpm": mixer.rpm}, "reference_cpu_s": reference.cpu_seconds,
+               "noise_floor_percent": floor.average, "noise_floor_table": floor.relative.tolist(),
+               "partition_flux": list(part1.dem_regions),
+               "partition_velocity": list(part2.dem_regions), "runs": []}
+    for method, part, source in (("I (flux)", part1, SOURCE_7_5),
+                                 ("II (velocity)", part2, SOURCE_7_6)):
+        n_dem = max(1, min(N_REGIONS - 1, max(part.dem_regions) + 1))
+        run, errors = hybrid(n_dem, 0.1, f"method {method}")
+        print("\nregion  ours species0/species1 (%)   source red/blue or blue/red (%)   "
+              "floor (%)")
+        for i in range(N_REGIONS):
+            ours = errors.relative[i]
+            print(f"{i + 1:6d}  {ours[0]:8.2f} {ours[1]:8.2f}        {source[i][0]:8.2f} "
+                  f"{source[i][1]:8.2f}        {floor.relative[i, 0]:6.2f} "
+                  f"{floor.relative[i, 1]:6.2f}")
+        print(f"average {errors.average:.2f} % (source {np.mean(source):.2f} %); "
+              f"sigma_j² {errors.variance.round(1).tolist()}\n", flush=True)
+        results["runs"].append({"method": method, "n_dem": n_dem, "interval_s": 0.1,
+                                "error_percent": errors.average,
+                                "table": errors.relative.tolist(),
+                                "dem_cpu_s": run.dem_cpu_seconds,
+                                "compartment_cpu_s": run.compartment_cpu_seconds})
+    print("DEM share x exchange interval (like the source's Tables 7.7 and 7.8):")
+    for n_dem in (3, 4, 6):
+        for interval in (0.05, 0.2):
+            run, errors = hybrid(n_dem, interval, "share")
+            results["runs"].append({"method": "share", "n_dem": n_dem, "interval_s": interval,
+                                    "error_percent": errors.average,
+                                    "dem_cpu_s": run.dem_cpu_seconds,
+                                    "compartment_cpu_s": run.compartment_cpu_seconds})
+    print(f"total wall time {time.time() - clock:.0f} s")
+    if args.out:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        Path(args.out, "results.json").write_text(json.dumps(results, indent=2))
+
+
+if __name__ == "__main__":
+    main()
