@@ -38,6 +38,7 @@ FITTING_LAYERS = (
     "fitting.cli.globalfit",
     "fitting.cli.funnel",
     "fitting.cli.divert",
+    "fitting.cli.dem",
     "fitting.cli",
     # Deprecated aliases of earlier releases, kept one release: they sit on top.
     "fitting.io",
