@@ -1,6 +1,7 @@
 """The hybrid DEM + compartment run of the source's bladed mixer against full DEM.
 
     python benchmarks/dem.py [--quick] [--out DIR]
+    python benchmarks/dem.py --section RUN.npz   # a recorded paddle section (see below)
 
 Needs the ``dem`` extra. Steps (MODELS.md §9):
 
@@ -11,6 +12,13 @@ Needs the ``dem`` extra. Steps (MODELS.md §9):
    noise floor from two equivalent halves of every species;
 3. hybrid runs (DEM at the impeller end, the count engine elsewhere) for both partitions and
    over DEM shares and exchange intervals, each compared with the reference at the end.
+
+With ``--section``, a recorded periodic paddle section (``axialmix dem learn`` writes
+``run.npz``) is analysed instead: v, D_z and its lag dependence from the tracks through
+axialmix.trajectories; networks learned on the first half of the run for several cell layouts
+and lags, their equivalent ADM, Markov test, and how well each predicts the spreading of a
+tracer in the second half against the DEM's own noise floor (a second tracer started half a
+period away, equivalent by the periodicity).
 
 The mixer is the source's geometry (radius 0.1 m, length 0.5 m; see axialmix.dem.BladedMixer)
 with 1,500 + 1,500 spheres of 8.2 mm: the same 5 % solid fill as the source's 5,000 + 5,000
@@ -38,11 +46,68 @@ SOURCE_7_6 = [(3.99, 7.35), (5.17, 3.95), (15.79, 10.60), (2.29, 5.13), (11.83, 
 N_REGIONS = 10
 
 
+def section(path: str) -> None:
+    from axialmix.dem import (
+        DEMRun,
+        cell_length_limit,
+        dem_transport,
+        markov_test,
+        tracer_spreading,
+    )
+
+    run = DEMRun.load(path)
+    g = run.geometry
+    dt = run.frame_interval
+    print(f"paddle section: {run.n_particles} spheres, {run.times[-1]:.2f} s recorded every "
+          f"{dt:g} s, DEM CPU {run.cpu_seconds:.0f} s")
+    transport = dem_transport(run, lags=(0.01, 0.05, 0.1, 0.25, 0.5, 1.0, 2.0))
+    print(f"DEM tracks (axialmix.trajectories): v = {transport.velocity * 1e3:.2f} mm/s, "
+          f"D_z = {transport.dispersion * 1e6:.1f} mm²/s (window {transport.window[0]:.2f}-"
+          f"{transport.window[1]:.2f} s), Pe over 0.74 m = {transport.peclet:.1f}")
+    print("lag (s)   apparent D_z = MSD/(2 lag) (mm²/s)")
+    for lag, d in zip(transport.lags, transport.lag_dispersion, strict=True):
+        print(f"{lag:7.2f}   {d * 1e6:8.1f}")
+    limit = cell_length_limit(transport.velocity, transport.dispersion)
+    print(f"cell length rule: dx <= 2 D_z/|v| = {limit * 1e3:.1f} mm")
+    half = run.n_frames // 2
+    z = run.positions[:, :, 2]
+    r = np.hypot(run.positions[:, :, 0], run.positions[:, :, 1])
+    print("\ncells        lag (s)  v net (mm/s) [95 %]        D_z net (mm²/s) [95 %]   clipped"
+          "  CK err/noise   tracer err/floor")
+    for n_cells, n_radial in ((6, 1), (12, 1), (24, 1), (12, 2)):
+        cells = axial_cells(z, g.length, n_cells, periodic=True, radius=r,
+                            vessel_radius=g.radius, n_radial=n_radial)
+        n = n_cells * n_radial
+        centres = np.repeat((np.arange(n_cells) + 0.5) * g.length / n_cells, n_radial)
+        for lag_s in (0.05, 0.25):
+            lag = max(1, round(lag_s / dt))
+            learned = learn_network(cells[:half], n, dt, lag, round(g.revolution_time / dt),
+                                    centres=centres, period=g.length)
+            v, d = learned.transport()
+            (vlo, vhi), (dlo, dhi) = learned.transport_interval()
+            test = markov_test(cells[:half], n, dt, (lag,), ck_steps=(2, 4))
+            ck = float(np.max(test.ck_error / np.maximum(test.ck_sampling, 1e-12)))
+            # The tracer: spheres in the first axial cell (all rings) at the start of the
+            # second half; its twin half a period away.
+            delays = tuple(round(t / dt) for t in (0.25, 0.5, 1.0, 2.0))
+            spread = tracer_spreading(cells, learned, dt, half, delays, n_cells // 2,
+                                      n_radial=n_radial)
+            label = f"{n_cells}x{n_radial} ({g.length / n_cells * 1e3:.0f} mm)"
+            print(f"{label:12s} {lag * dt:6.2f}  {v * 1e3:7.2f} [{vlo * 1e3:6.2f},{vhi * 1e3:6.2f}]"
+                  f"   {d * 1e6:7.1f} [{dlo * 1e6:6.1f},{dhi * 1e6:6.1f}]   {learned.clipped:5.2f}"
+                  f"   {ck:6.2f}        {spread.ratio:5.2f} "
+                  f"({spread.error.mean():.4f}/{spread.floor.mean():.4f})", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="600 spheres, runs of 1-1.5 s")
     parser.add_argument("--out", default=None, help="write results.json here")
+    parser.add_argument("--section", default=None, metavar="RUN", help="analyse a section run")
     args = parser.parse_args()
+    if args.section:
+        section(args.section)
+        return
     if args.quick:
         mixer = BladedMixer(particles=(300, 300), diameter=0.0082)
         learn_s, ref_s = 1.5, 1.0

@@ -113,33 +113,38 @@ class TracerSpreading:
 
 
 def tracer_spreading(cells: np.ndarray, learned: LearnedNetwork, frame_interval: float,
-                     start: int, delays: tuple[int, ...], shift: int) -> TracerSpreading:
-    """Compare a DEM tracer with the learned network's prediction, on a ring of cells.
+                     start: int, delays: tuple[int, ...], shift: int, n_radial: int = 1
+                     ) -> TracerSpreading:
+    """Compare a DEM tracer with the learned network's prediction, on a ring of axial cells.
 
     **Arguments:**
 
-    - `cells`: ``(frames, particles)`` cell of every sphere (the network's cells).
+    - `cells`: ``(frames, particles)`` cell of every sphere (the network's cells, index
+      ``axial * n_radial + ring``).
     - `learned`: the :class:`LearnedNetwork` (from other frames of the run).
     - `frame_interval`: s.
-    - `start`: frame at which the spheres in cell 0 become the tracer; the twin tracer is
-      the spheres in cell `shift` (equivalent by the section's periodicity), its cells
-      shifted back by `shift`.
+    - `start`: frame at which the spheres in axial cell 0 become the tracer; the twin tracer
+      is the spheres in axial cell `shift` (equivalent by the section's periodicity), its
+      cells shifted back by `shift`.
     - `delays`: frames after `start` to compare.
+    - `n_radial`: rings per axial cell; the tracer starts in the rings as the DEM has it, and
+      fractions are compared per axial cell.
 
-    **Returns:** a :class:`TracerSpreading`.
+    **Returns:** a :class:`TracerSpreading` (fractions per axial cell).
     """
     n = learned.n_cells
-    first = cells[start] == 0
-    second = cells[start] == shift
+    n_axial = n // n_radial
+    axial = cells // n_radial
+    first = axial[start] == 0
+    second = axial[start] == shift
     delays = np.asarray(delays)
-    later = cells[start + delays]
-    dem = np.stack([np.bincount(c[first], minlength=n) for c in later]) / first.sum()
-    twin = np.stack([np.bincount((c[second] - shift) % n, minlength=n) for c in later])
-    twin = twin / second.sum()
-    p0 = np.zeros(n)
-    p0[0] = 1.0
+    later = axial[start + delays]
+    dem = np.stack([np.bincount(c[first], minlength=n_axial) for c in later]) / first.sum()
+    twin = np.stack([np.bincount((c[second] - shift) % n_axial, minlength=n_axial)
+                     for c in later]) / second.sum()
+    p0 = np.bincount(cells[start][first], minlength=n) / first.sum()
     predicted = np.stack([p0 @ scipy.linalg.expm(learned.rates * d * frame_interval)
-                          for d in delays])
+                          for d in delays]).reshape(delays.size, n_axial, n_radial).sum(axis=2)
     return TracerSpreading(
         times=delays * frame_interval, dem=dem, predicted=predicted, twin=twin,
         error=np.abs(dem - predicted).mean(axis=1), floor=np.abs(dem - twin).mean(axis=1),
