@@ -60,7 +60,8 @@ def dem_transport(run, lags=(0.05, 0.1, 0.25, 0.5, 1.0, 2.0), blender_length: fl
     **Arguments:**
 
     - `run`: a :class:`axialmix.dem.DEMRun` (``z`` unwrapped for a periodic section).
-    - `lags`: lags (s) at which the apparent ``D_z(lag)`` is reported (rounded to frames).
+    - `lags`: lags (s) at which the apparent ``D_z(lag)`` is reported (the nearest whole
+      number of frames; NaN beyond a fifth of the run).
     - `blender_length`: length for the Peclet number, m (0.74 m: blender 1 of MODELS.md §1).
 
     **Returns:** a :class:`DEMTransport`.
@@ -72,11 +73,17 @@ def dem_transport(run, lags=(0.05, 0.1, 0.25, 0.5, 1.0, 2.0), blender_length: fl
     z = run.positions[:, :, 2].astype(float)
     duration = float(run.times[-1] - run.times[0])
     velocity = float(np.mean(z[-1] - z[0]) / duration)
-    msd = pooled_mean_square_displacement(tracks, drift_velocity=velocity,
-                                          max_lag_time=max(max(lags), duration / 10))
-    fit = fit_dispersion_coefficient(msd)
     lags = np.asarray(lags, float)
-    at = np.interp(lags, msd.lag_time, msd.msd, left=np.nan, right=np.nan) / (2 * lags)
+    # Lags up to the largest asked for, each averaging at least 5 independent displacements.
+    independent = int(max(5, min(10, duration // max(lags.max(), run.frame_interval))))
+    msd = pooled_mean_square_displacement(tracks, drift_velocity=velocity,
+                                          min_independent_displacements=independent,
+                                          max_lag_time=lags.max() + run.frame_interval)
+    fit = fit_dispersion_coefficient(msd)
+    # The MSD bin nearest each lag (bins are one frame wide); NaN beyond the largest lag.
+    nearest = np.abs(msd.lag_time[None, :] - lags[:, None]).argmin(axis=1)
+    close = np.abs(msd.lag_time[nearest] - lags) <= run.frame_interval / 2
+    at = np.where(close, msd.msd[nearest] / (2 * msd.lag_time[nearest]), np.nan)
     return DEMTransport(
         velocity=velocity,
         dispersion=float(fit.dispersion_coefficient),
