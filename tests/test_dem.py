@@ -145,3 +145,24 @@ def test_bladed_mixer_smoke_run_keeps_species_in_the_vessel():
     # Species 0 starts in the half at the blade, species 1 in the other half.
     assert np.all(z[0][run.species == 0] < mixer.length / 2 + mixer.diameter)
     assert np.all(z[0][run.species == 1] > mixer.length / 2 - mixer.diameter)
+
+
+@needs_lammps
+def test_interrupted_run_keeps_the_frames_recorded(tmp_path):
+    from axialmix.dem import DEMRun, run_dem
+
+    def stop_at_frame_3(frame, seconds):
+        if frame == 3:
+            raise KeyboardInterrupt
+
+    settings = RunSettings(duration=0.1, record_interval=0.01, settle_time=0.01, seed=2)
+    run = run_dem(PaddleSection(particles=(60,)), settings, progress=False,
+                  on_frame=stop_at_frame_3)
+    assert run.interrupted and run.n_frames == 4
+    assert np.all(np.isfinite(run.positions)) and run.positions.shape == (4, 60, 3)
+    np.testing.assert_allclose(np.diff(run.times), run.frame_interval)
+    # What was recorded survives a save and a load unchanged.
+    run.save(tmp_path / "run.npz")
+    again = DEMRun.load(tmp_path / "run.npz")
+    assert again.interrupted and again.geometry == run.geometry
+    np.testing.assert_array_equal(again.positions, run.positions)
