@@ -65,3 +65,24 @@ def test_learn_writes_a_network_that_axialmix_reads(tmp_path):
                        "--cells", "6", "--bootstrap", "50", "--out", str(again))
     assert result.returncode == 0, result.stderr
     assert CompartmentNetwork.from_json(again / "network.json") == network
+
+
+@pytest.mark.skipif(not dem_available(), reason="the dem extra is not installed")
+def test_validate_writes_composition_errors_and_plot(tmp_path):
+    out = tmp_path / "validation"
+    result = _axialmix("dem", "validate", "--particles", "100,100", "--learn-duration", "1.2",
+                       "--duration", "0.4", "--record-interval", "0.05", "--settle", "0.2",
+                       "--dem-regions", "4", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    assert {p.name for p in out.iterdir()} == {"composition.csv", "errors.csv",
+                                               "validation.json", "validation.png"}
+    with open(out / "composition.csv") as handle:
+        rows = list(csv.reader(handle))
+    assert rows[0] == ["t [s]", "region", "species 0", "species 1"]
+    table = np.array(rows[1:], float)
+    for t in np.unique(table[:, 0]):
+        at = table[table[:, 0] == t]
+        assert at.shape[0] == 10 and at[:, 2:].sum(axis=0).tolist() == [100, 100]
+    record = json.loads((out / "validation.json").read_text())
+    assert record["dem_regions"] == 4 and 0 <= record["compartment_share"] < 1
+    assert (out / "validation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

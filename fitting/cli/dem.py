@@ -120,6 +120,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
+def _plain(value):
+    # JSON has no NaN or infinity: they are written as null.
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 def _check_out(path: str) -> Path:
     out = Path(path)
     if out.exists() and not out.is_dir():
@@ -216,7 +227,7 @@ def _learn(args, out: Path) -> int:
                    "ck_sampling": test.ck_sampling.tolist()},
         "interrupted": run.interrupted,
     }
-    write_json(out / "learn.json", record)
+    write_json(out / "learn.json", _plain(record))
     print(f"DEM ({run.n_particles} spheres, {run.times[-1]:.2f} s): "
           f"v = {transport.velocity * 1e3:.2f} mm/s, "
           f"D_z = {transport.dispersion * 1e6:.1f} mm²/s, Pe = {transport.peclet:.1f}")
@@ -344,7 +355,7 @@ def _mixer_runs(args, out: Path, validate: bool) -> int:
     fig.tight_layout()
     fig.savefig(out / ("validation.png" if validate else "composition.png"), dpi=110)
     plt.close(fig)
-    write_json(out / ("validation.json" if validate else "hybrid.json"), record)
+    write_json(out / ("validation.json" if validate else "hybrid.json"), _plain(record))
     print(f"results written to {out}")
     return 130 if hybrid.interrupted else 0
 
