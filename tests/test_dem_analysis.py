@@ -87,7 +87,8 @@ def test_composition_errors_by_hand():
 
 def test_tracer_spreading_of_a_markov_ring_is_at_the_noise_floor():
     # A ring with drift run by the identity engine; the network learned on the first half
-    # predicts the second half's tracer no worse than two equivalent tracers differ.
+    # predicts the second half's tracer about as well as an exact network would (ratio near
+    # 1; the learned rates add their own estimation error).
     n, holdup = 8, 300
     sources, targets, moves = [], [], []
     for i in range(n):
@@ -96,14 +97,21 @@ def test_tracer_spreading_of_a_markov_ring_is_at_the_noise_floor():
         moves += [12, 6]
     ring = ParticleNetwork(np.full(n, holdup), sources, targets, moves, step_seconds=0.01)
     initial = np.column_stack([np.full(n, 200), np.full(n, 100)])
-    result = simulate(ring, initial, 2000, engine="identity", seed=8, tracked_species=[1])
-    cells = sequences_from_particle_events(result, 1)
-    learned = learn_network(cells[:1000], n, 0.01, 1, 100)
-    spreading = tracer_spreading(cells, learned, 0.01, 1000, (10, 30, 60), shift=n // 2)
-    assert spreading.dem.shape == spreading.predicted.shape == (3, n)
-    np.testing.assert_allclose(spreading.dem.sum(axis=1), 1)
-    np.testing.assert_allclose(spreading.predicted.sum(axis=1), 1)
-    assert spreading.ratio < 1.5
+    ratios = []
+    for seed in range(5):
+        result = simulate(ring, initial, 2000, engine="identity", seed=seed,
+                          tracked_species=[1])
+        cells = sequences_from_particle_events(result, 1)
+        learned = learn_network(cells[:1000], n, 0.01, 1, 100)
+        spreading = tracer_spreading(cells, learned, 0.01, 1000, (10, 30, 60))
+        assert spreading.dem.shape == spreading.predicted.shape == (3, n)
+        np.testing.assert_allclose(spreading.dem.sum(axis=1), 1)
+        np.testing.assert_allclose(spreading.predicted.sum(axis=1), 1)
+        np.testing.assert_allclose(spreading.halves.sum(axis=2), 1)
+        ratios.append(spreading.ratio)
+    # The floor is calibrated: for a Markov process the error is the floor on average
+    # (single runs spread by about 0.15 around it).
+    assert 0.75 < np.mean(ratios) < 1.25 and max(ratios) < 1.5
 
 
 @pytest.mark.skipif(not dem_available(), reason="the dem extra is not installed")

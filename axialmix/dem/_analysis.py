@@ -6,7 +6,8 @@
   at chosen lags (it depends on the lag where the motion has memory, such as blade passage).
 * :func:`tracer_spreading`: spheres in chosen cells at a start frame are a tracer; their
   distribution over the cells later, in the DEM and as a learned network predicts it
-  (``p(t) = p(0) exp(Q t)``), with the DEM's own noise floor from a second, equivalent tracer.
+  (``p(t) = p(0) exp(Q t)``), with the DEM's own noise floor from two random halves of the
+  tracer.
 * :func:`flux_partition` (the source's partition method I, its §7.6): the net count change of
   every species in every region per interval, ``(N(i, t + dt) - N(i, t)) / dt``; the regions
   whose flux varies most over time (standard deviation) go to DEM.
@@ -101,28 +102,30 @@ class TracerSpreading:
     """A tracer's distribution over cells in the DEM and as a network predicts it.
 
     **Fields:** `times` after the start (s); `dem` and `predicted` ``(times, cells)`` tracer
-    fractions; `twin` the second tracer's fractions (shifted to the first's start);
-    `error` mean over cells of ``|dem - predicted|`` at each time; `floor` the same between
-    the two DEM tracers (the DEM's own noise); both in tracer fraction.
+    fractions; `halves` ``(2, times, cells)`` the fractions of two random halves of the
+    tracer; `error` mean over cells of ``|dem - predicted|`` at each time; `floor` the mean
+    of ``|half_1 - half_2| / 2`` over random splits, the DEM's own sampling noise on the
+    whole tracer's fractions (each half has twice its variance), what `error` would be for
+    an exact network; both in tracer fraction.
     """
 
     times: np.ndarray
     dem: np.ndarray
     predicted: np.ndarray
-    twin: np.ndarray
+    halves: np.ndarray
     error: np.ndarray
     floor: np.ndarray
 
     @property
     def ratio(self) -> float:
-        """Mean error over the mean noise floor."""
+        """Mean error over the mean noise floor (about 1 for a network that is exact)."""
         return float(self.error.mean() / self.floor.mean())
 
 
 def tracer_spreading(cells: np.ndarray, learned: LearnedNetwork, frame_interval: float,
-                     start: int, delays: tuple[int, ...], shift: int, n_radial: int = 1
-                     ) -> TracerSpreading:
-    """Compare a DEM tracer with the learned network's prediction, on a ring of axial cells.
+                     start, delays: tuple[int, ...], n_radial: int = 1, seed: int = 0,
+                     splits: int = 20) -> TracerSpreading:
+    """Compare a DEM tracer with the learned network's prediction.
 
     **Arguments:**
 
@@ -130,31 +133,55 @@ def tracer_spreading(cells: np.ndarray, learned: LearnedNetwork, frame_interval:
       ``axial * n_radial + ring``).
     - `learned`: the :class:`LearnedNetwork` (from other frames of the run).
     - `frame_interval`: s.
-    - `start`: frame at which the spheres in axial cell 0 become the tracer; the twin tracer
-      is the spheres in axial cell `shift` (equivalent by the section's periodicity), its
-      cells shifted back by `shift`.
-    - `delays`: frames after `start` to compare.
+    - `start`: frame (or frames) at which the spheres in axial cell 0 become the tracer.
+      With several start frames (spread over the blade phases) the DEM fractions are the
+      mean over starts: the phase-averaged spreading a network describes.
+    - `delays`: frames after each start to compare.
     - `n_radial`: rings per axial cell; the tracer starts in the rings as the DEM has it, and
       fractions are compared per axial cell.
+    - `seed`, `splits`: seed and number of the random splits of the spheres into two halves
+      whose differences, averaged, give the noise floor (`halves` keeps the first split).
 
     **Returns:** a :class:`TracerSpreading` (fractions per axial cell).
     """
     n = learned.n_cells
     n_axial = n // n_radial
     axial = cells // n_radial
-    first = axial[start] == 0
-    second = axial[start] == shift
+    starts = np.atleast_1d(np.asarray(start, dtype=int))
     delays = np.asarray(delays)
-    later = axial[start + delays]
-    dem = np.stack([np.bincount(c[first], minlength=n_axial) for c in later]) / first.sum()
-    twin = np.stack([np.bincount((c[second] - shift) % n_axial, minlength=n_axial)
-                     for c in later]) / second.sum()
-    p0 = np.bincount(cells[start][first], minlength=n) / first.sum()
+    if starts.max() + delays.max() >= cells.shape[0]:
+        raise ValueError("the last start plus the longest delay runs past the recorded frames.")
+
+    def fractions(mask):
+        out = np.zeros((delays.size, n_axial))
+        for s0 in starts:
+            members = np.nonzero((axial[s0] == 0) & mask)[0]
+            if members.size == 0:
+                raise ValueError(f"no tracer sphere in the first cell at frame {s0}.")
+            for k, d in enumerate(delays):
+                out[k] += np.bincount(axial[s0 + d, members], minlength=n_axial) / members.size
+        return out / starts.size
+
+    everyone = np.ones(cells.shape[1], bool)
+    dem = fractions(everyone)
+    rng = np.random.default_rng(seed)
+    floors, halves = [], None
+    for _ in range(int(splits)):
+        mask = np.zeros(cells.shape[1], bool)
+        mask[rng.permutation(cells.shape[1])[: cells.shape[1] // 2]] = True
+        pair = np.stack([fractions(mask), fractions(~mask)])
+        halves = pair if halves is None else halves
+        floors.append((np.abs(pair[0] - pair[1]) / 2).mean(axis=1))
+    p0 = np.zeros(n)
+    for s0 in starts:
+        members = axial[s0] == 0
+        p0 += np.bincount(cells[s0][members], minlength=n) / members.sum()
+    p0 /= starts.size
     predicted = np.stack([p0 @ scipy.linalg.expm(learned.rates * d * frame_interval)
                           for d in delays]).reshape(delays.size, n_axial, n_radial).sum(axis=2)
     return TracerSpreading(
-        times=delays * frame_interval, dem=dem, predicted=predicted, twin=twin,
-        error=np.abs(dem - predicted).mean(axis=1), floor=np.abs(dem - twin).mean(axis=1),
+        times=delays * frame_interval, dem=dem, predicted=predicted, halves=halves,
+        error=np.abs(dem - predicted).mean(axis=1), floor=np.mean(floors, axis=0),
     )
 
 
