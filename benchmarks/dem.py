@@ -37,7 +37,7 @@ import numpy as np
 
 from axialmix.dem import BladedMixer, RunSettings, axial_cells, learn_network, run_dem
 from axialmix.dem._analysis import flux_partition, region_counts, velocity_partition
-from axialmix.dem._hybrid import composition_errors, run_hybrid, twin_tracer_counts
+from axialmix.dem._hybrid import composition_errors, dem_noise_floor, run_hybrid
 
 SOURCE_7_5 = [(1.60, 3.47), (26.69, 20.45), (2.42, 10.89), (7.39, 2.11), (12.87, 9.60),
               (11.39, 9.38), (10.60, 11.24), (1.18, 9.90), (1.32, 2.95), (0.29, 3.49)]
@@ -134,8 +134,7 @@ def main() -> None:
     reference = run_dem(mixer, ref_settings)
     print(f"reference full DEM: CPU {reference.cpu_seconds:.1f} s", flush=True)
     ref_counts = region_counts(reference, N_REGIONS)
-    a, b = twin_tracer_counts(reference, N_REGIONS)
-    floor = composition_errors(a[-1], b[-1])
+    floor = dem_noise_floor(reference, N_REGIONS)
     print(f"DEM noise floor (two equivalent halves, end of run): {floor.average:.2f} %")
 
     def hybrid(n_dem, interval, label):

@@ -85,6 +85,19 @@ def test_composition_errors_by_hand():
     np.testing.assert_allclose(errors.variance, [(4 + 25) / 3, 16 / 3])
 
 
+def test_noise_floor_of_a_run_without_sampling_noise_is_zero():
+    from axialmix.dem import dem_noise_floor
+
+    # Every sphere of a species in the same region at all frames: both halves agree exactly.
+    mixer = BladedMixer(particles=(40, 40))
+    z = np.concatenate([np.full(40, 0.02), np.full(40, 0.47)])
+    positions = np.stack([np.zeros(80), np.full(80, -0.08), z], axis=1)[None].repeat(3, 0)
+    run = _run(mixer, positions, species=np.repeat([0, 1], 40))
+    floor = dem_noise_floor(run, 10)
+    assert floor.average == 0 and np.all(floor.variance == 0)
+    assert np.isnan(floor.relative[1:9]).all()  # regions without spheres
+
+
 def test_tracer_spreading_of_a_markov_ring_is_at_the_noise_floor():
     # A ring with drift run by the identity engine; the network learned on the first half
     # predicts the second half's tracer about as well as an exact network would (ratio near

@@ -23,6 +23,7 @@ from ._hybrid import (
     CompositionErrors,
     HybridRun,
     composition_errors,
+    dem_noise_floor,
     run_hybrid,
     twin_tracer_counts,
 )
@@ -68,6 +69,7 @@ __all__ = [
     "cell_length_limit",
     "count_matrix",
     "dem_available",
+    "dem_noise_floor",
     "lammps_module",
     "learn_network",
     "markov_test",

@@ -31,8 +31,8 @@ from ._config import BladedMixer, RunSettings
 from ._engine import DEMEngine, DEMRun
 from ._learn import LearnedNetwork
 
-__all__ = ["CompositionErrors", "HybridRun", "composition_errors", "run_hybrid",
-           "twin_tracer_counts"]
+__all__ = ["CompositionErrors", "HybridRun", "composition_errors", "dem_noise_floor",
+           "run_hybrid", "twin_tracer_counts"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -213,6 +213,27 @@ def composition_errors(reference: np.ndarray, other: np.ndarray) -> CompositionE
     with np.errstate(invalid="ignore", divide="ignore"):
         relative = np.where(e > 0, np.abs(e - h) / e * 100, np.nan)
     variance = ((e - h) ** 2).mean(axis=0)
+    return CompositionErrors(relative, variance, float(np.nanmean(relative)))
+
+
+def dem_noise_floor(run: DEMRun, n_regions: int, frame: int = -1, seed: int = 0
+                    ) -> CompositionErrors:
+    """The DEM's own noise on the source's error measures, from one run.
+
+    Two random halves of every species (:func:`twin_tracer_counts`), each scaled to the
+    whole, differ by ``a - b`` with twice the standard deviation of the whole's sampling
+    noise; two independent runs differ by ``sqrt(2)`` times it. So ``|a - b| / sqrt(2)`` is
+    what an exact hybrid's difference from a full DEM run would be: ``e_ij`` is
+    ``|a - b| / sqrt(2) / ((a + b) / 2) × 100`` and ``sigma_j²`` the mean of ``(a - b)² / 2``.
+
+    **Arguments:** `run`, `n_regions`; `frame` compared (default the last); `seed` of the split.
+    """
+    a, b = twin_tracer_counts(run, n_regions, seed=seed)
+    a, b = a[frame], b[frame]
+    mean = (a + b) / 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        relative = np.where(mean > 0, np.abs(a - b) / math.sqrt(2) / mean * 100, np.nan)
+    variance = ((a - b) ** 2 / 2).mean(axis=0)
     return CompositionErrors(relative, variance, float(np.nanmean(relative)))
 
 

@@ -250,12 +250,12 @@ def _mixer_runs(args, out: Path, validate: bool) -> int:
         RunSettings,
         axial_cells,
         composition_errors,
+        dem_noise_floor,
         flux_partition,
         learn_network,
         region_counts,
         run_dem,
         run_hybrid,
-        twin_tracer_counts,
         velocity_partition,
     )
 
@@ -320,12 +320,11 @@ def _mixer_runs(args, out: Path, validate: bool) -> int:
     fraction = hybrid.counts[:, :, 0] / np.maximum(hybrid.counts.sum(axis=2), 1)
     if reference is not None:
         ref = region_counts(reference, args.regions)
-        a, b = twin_tracer_counts(reference, args.regions, seed=args.seed)
         # The reference frames matching the hybrid's record times.
         index = np.clip(np.round(hybrid.times / reference.frame_interval).astype(int), 0,
                         reference.n_frames - 1)
         errors = composition_errors(ref[index[-1]], hybrid.counts[-1])
-        floor = composition_errors(a[index[-1]], b[index[-1]])
+        floor = dem_noise_floor(reference, args.regions, frame=int(index[-1]), seed=args.seed)
         write_csv(out / "errors.csv",
                   ["region", *[f"e species {s} [%]" for s in range(species)],
                    *[f"floor species {s} [%]" for s in range(species)]],
