@@ -221,9 +221,13 @@ class DEMEngine:
             f"timestep {self.time_step:.10g}",
             "thermo 0",
         ]
-        for command in commands:
-            self._lmp.command(command)
-        self._place(settings.seed)
+        try:
+            for command in commands:
+                self._lmp.command(command)
+            self._place(settings.seed)
+        except BaseException:
+            self.close()
+            raise
 
     def _place(self, seed: int) -> None:
         g = self.geometry
