@@ -47,6 +47,7 @@ FITTING_LAYERS = (
     "fitting.cli.globalfit",
     "fitting.cli.funnel",
     "fitting.cli.divert",
+    "fitting.cli.dem",
     "fitting.cli",
 )
 #: Optional or heavy third-party packages a fitting module may import inside a function.

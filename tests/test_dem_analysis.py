@@ -1,0 +1,153 @@
+"""Transport, tracer spreading, partitions and composition errors of recorded runs.
+
+Recorded runs are built by hand here (a :class:`DEMRun` is plain arrays), so the expected
+answers are known; the hybrid's conservation is checked on a small real DEM run.
+"""
+
+import numpy as np
+import pytest
+
+from axialmix.dem import (
+    BladedMixer,
+    DEMRun,
+    PaddleSection,
+    RunSettings,
+    composition_errors,
+    dem_available,
+    dem_transport,
+    flux_partition,
+    learn_network,
+    region_counts,
+    tracer_spreading,
+    velocity_partition,
+)
+from axialmix.dem._learn import sequences_from_particle_events
+from axialmix.particles import ParticleNetwork, simulate
+
+
+def _run(geometry, positions, velocities=None, species=None, dt=0.01):
+    frames, n, _ = positions.shape
+    return DEMRun(
+        geometry, RunSettings(), 1e-4, np.arange(frames) * dt, positions.astype(np.float32),
+        np.zeros_like(positions, np.float32) if velocities is None
+        else velocities.astype(np.float32),
+        np.zeros(n, np.int64) if species is None else species, 0.0, frames,
+    )
+
+
+def test_dem_transport_recovers_drift_and_dispersion_of_brownian_tracks():
+    rng = np.random.default_rng(4)
+    v, d, dt, frames, n = -0.03, 1e-4, 0.01, 2000, 200
+    steps = v * dt + np.sqrt(2 * d * dt) * rng.standard_normal((frames - 1, n))
+    z = np.vstack([rng.uniform(0, 0.12, n), steps]).cumsum(axis=0)
+    positions = np.stack([np.zeros_like(z), -0.05 * np.ones_like(z), z], axis=2)
+    transport = dem_transport(_run(PaddleSection(), positions), lags=(0.05, 0.5),
+                              blender_length=0.74)
+    assert transport.velocity == pytest.approx(v, rel=0.05)
+    assert transport.dispersion == pytest.approx(d, rel=0.1)
+    np.testing.assert_allclose(transport.lag_dispersion, d, rtol=0.1)  # no memory: flat
+    assert transport.peclet == pytest.approx(abs(transport.velocity) * 0.74
+                                             / transport.dispersion)
+
+
+def test_region_counts_and_partitions_find_the_active_regions():
+    rng = np.random.default_rng(0)
+    mixer = BladedMixer(particles=(50, 50))
+    frames, n = 60, 100
+    z = np.empty((frames, n))
+    z[:, :50] = rng.uniform(0.0, 0.1, (frames, 50))  # species 0 jumps between regions 1-2
+    z[:, 50:] = np.linspace(0.31, 0.49, 50)[None, :]  # species 1 at rest in regions 7-10
+    positions = np.stack([np.zeros_like(z), -0.08 * np.ones_like(z), z], axis=2)
+    velocities = np.zeros_like(positions)
+    velocities[:, :50, 0] = rng.normal(0, 0.3, (frames, 50))
+    run = _run(mixer, positions, velocities, np.repeat([0, 1], 50), dt=0.05)
+    counts = region_counts(run, 10)
+    assert counts.shape == (frames, 10, 2)
+    assert np.all(counts.sum(axis=1) == [50, 50])
+    assert np.all(counts[:, 2:, 0] == 0) and np.all(counts[:, :6, 1] == 0)
+    flux = flux_partition(run, 10, interval=0.05)
+    assert flux.dem_regions == (0, 1)
+    assert np.all(flux.measure[6:] == 0)  # regions at rest have no flux
+    velocity = velocity_partition(run, 10)
+    assert velocity.dem_regions == (0, 1)
+    assert velocity.score[0] == pytest.approx(0.09, rel=0.15)
+    assert flux_partition(run, 10, interval=0.05, n_dem=1).dem_regions in ((0,), (1,))
+    assert "DEM" in flux.table()
+
+
+def test_composition_errors_by_hand():
+    e = np.array([[10, 0], [20, 5], [30, 40]])
+    h = np.array([[12, 0], [15, 5], [30, 44]])
+    errors = composition_errors(e, h)
+    expected = np.array([[20.0, np.nan], [25.0, 0.0], [0.0, 10.0]])
+    np.testing.assert_allclose(errors.relative, expected)
+    assert errors.average == pytest.approx(np.nanmean(expected))
+    np.testing.assert_allclose(errors.variance, [(4 + 25) / 3, 16 / 3])
+
+
+def test_noise_floor_of_a_run_without_sampling_noise_is_zero():
+    from axialmix.dem import dem_noise_floor
+
+    # Every sphere of a species in the same region at all frames: both halves agree exactly.
+    mixer = BladedMixer(particles=(40, 40))
+    z = np.concatenate([np.full(40, 0.02), np.full(40, 0.47)])
+    positions = np.stack([np.zeros(80), np.full(80, -0.08), z], axis=1)[None].repeat(3, 0)
+    run = _run(mixer, positions, species=np.repeat([0, 1], 40))
+    floor = dem_noise_floor(run, 10)
+    assert floor.average == 0 and np.all(floor.variance == 0)
+    assert np.isnan(floor.relative[1:9]).all()  # regions without spheres
+
+
+def test_tracer_spreading_of_a_markov_ring_is_at_the_noise_floor():
+    # A ring with drift run by the identity engine; the network learned on the first half
+    # predicts the second half's tracer about as well as an exact network would (ratio near
+    # 1; the learned rates add their own estimation error).
+    n, holdup = 8, 300
+    sources, targets, moves = [], [], []
+    for i in range(n):
+        sources += [i, i]
+        targets += [(i + 1) % n, (i - 1) % n]
+        moves += [12, 6]
+    ring = ParticleNetwork(np.full(n, holdup), sources, targets, moves, step_seconds=0.01)
+    initial = np.column_stack([np.full(n, 200), np.full(n, 100)])
+    ratios = []
+    for seed in range(5):
+        result = simulate(ring, initial, 2000, engine="identity", seed=seed,
+                          tracked_species=[1])
+        cells = sequences_from_particle_events(result, 1)
+        learned = learn_network(cells[:1000], n, 0.01, 1, 100)
+        spreading = tracer_spreading(cells, learned, 0.01, 1000, (10, 30, 60))
+        assert spreading.dem.shape == spreading.predicted.shape == (3, n)
+        np.testing.assert_allclose(spreading.dem.sum(axis=1), 1)
+        np.testing.assert_allclose(spreading.predicted.sum(axis=1), 1)
+        np.testing.assert_allclose(spreading.halves.sum(axis=2), 1)
+        ratios.append(spreading.ratio)
+    # The floor is calibrated: for a Markov process the error is the floor on average
+    # (single runs spread by about 0.15 around it).
+    assert 0.75 < np.mean(ratios) < 1.25 and max(ratios) < 1.5
+
+
+@pytest.mark.skipif(not dem_available(), reason="the dem extra is not installed")
+def test_hybrid_conserves_particles_and_species():
+    from axialmix.dem import run_dem, run_hybrid
+    from axialmix.dem._learn import axial_cells
+
+    mixer = BladedMixer(particles=(150, 150), diameter=0.0082)
+    settings = RunSettings(duration=0.6, record_interval=0.05, settle_time=0.2, seed=5)
+    reference = run_dem(mixer, settings, progress=False)
+    cells = axial_cells(reference.positions[:, :, 2], mixer.length, 10)
+    learned = learn_network(cells, 10, reference.frame_interval, 1, 4)
+    start = region_counts(reference, 10)[0]
+    # Interface rates made large enough that identities are swapped in every interval.
+    learned = type(learned)(**{**learned.__dict__,
+                               "rates": learned.rates + 2 * (np.eye(10, k=1) + np.eye(10, k=-1))})
+    hybrid = run_hybrid(mixer, learned, start, 4, settings, exchange_interval=0.1,
+                        progress=False)
+    assert hybrid.exchanged.sum() > 0
+    # Exactly the same particles of each species, everywhere, at every record.
+    np.testing.assert_array_equal(hybrid.counts.sum(axis=1),
+                                  np.broadcast_to(start.sum(axis=0), hybrid.counts.shape[::2]))
+    # The compartments keep their hold-ups; the DEM part keeps its spheres.
+    np.testing.assert_array_equal(hybrid.counts[:, 4:].sum(axis=2),
+                                  np.broadcast_to(start[4:].sum(axis=1), (hybrid.times.size, 6)))
+    assert hybrid.compartment_cpu_seconds >= 0 and hybrid.dem_cpu_seconds > 0

@@ -1,0 +1,88 @@
+"""``axialmix dem`` through the command line: files written, networks readable, one-line errors."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from axialmix.dem import dem_available
+from axialmix.network import CompartmentNetwork
+
+_COMMAND = [sys.executable, "-c", "import sys; from fitting.cli import main; sys.exit(main())"]
+
+
+def _axialmix(*args, cwd=None):
+    return subprocess.run([*_COMMAND, *args], capture_output=True, text=True, cwd=cwd)
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["learn", "--duration", "0.5"], "two impeller revolutions"),
+        (["learn", "--run", "missing.npz"], "missing.npz: not a DEM run file"),
+        (["learn", "--cells", "0"], "positive whole number"),
+        (["hybrid", "--dem-regions", "10"], "must be below --regions"),
+        (["validate", "--particles", "1,x"], "counts per species"),
+    ],
+)
+def test_bad_options_give_one_line_and_write_nothing(tmp_path, args, words):
+    out = tmp_path / "out"
+    result = _axialmix("dem", *args, "--out", str(out), cwd=tmp_path)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0] and "Traceback" not in result.stderr
+    assert not out.exists()
+
+
+@pytest.mark.skipif(not dem_available(), reason="the dem extra is not installed")
+def test_learn_writes_a_network_that_axialmix_reads(tmp_path):
+    out = tmp_path / "learned"
+    result = _axialmix("dem", "learn", "--particles", "300", "--rpm", "120", "--duration",
+                       "1.2", "--record-interval", "0.02", "--settle", "0.25", "--lag",
+                       "0.04", "--cells", "6", "--bootstrap", "50", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    assert {p.name for p in out.iterdir()} == {"network.json", "rates.csv", "learn.json",
+                                               "run.npz"}
+    network = CompartmentNetwork.from_json(out / "network.json")
+    assert network.n_compartments == 6 and not network.is_discrete
+    with open(out / "rates.csv") as handle:
+        rows = list(csv.reader(handle))
+    assert rows[0] == ["source", "target", "rate [1/s]", "lower [1/s]", "upper [1/s]"]
+    for source, target, rate, lower, upper in rows[1:]:
+        c = next(c for c in network.connections if (c.source, c.target) == (source, target))
+        assert float(rate) == pytest.approx(c.rate)
+        assert float(lower) <= float(rate) * (1 + 1e-9) + 1e-12
+        assert float(upper) >= float(rate) * (1 - 1e-9) - 1e-12
+    record = json.loads((out / "learn.json").read_text())
+    assert record["particles"] == 300 and record["cells"] == 6
+    assert np.isfinite(record["dem"]["D_z_m2_per_s"])
+    # Learning again from the saved run gives the same network.
+    again = tmp_path / "again"
+    result = _axialmix("dem", "learn", "--run", str(out / "run.npz"), "--lag", "0.04",
+                       "--cells", "6", "--bootstrap", "50", "--out", str(again))
+    assert result.returncode == 0, result.stderr
+    assert CompartmentNetwork.from_json(again / "network.json") == network
+
+
+@pytest.mark.skipif(not dem_available(), reason="the dem extra is not installed")
+def test_validate_writes_composition_errors_and_plot(tmp_path):
+    out = tmp_path / "validation"
+    result = _axialmix("dem", "validate", "--particles", "100,100", "--learn-duration", "1.2",
+                       "--duration", "0.4", "--record-interval", "0.05", "--settle", "0.2",
+                       "--dem-regions", "4", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    assert {p.name for p in out.iterdir()} == {"composition.csv", "errors.csv",
+                                               "validation.json", "validation.png"}
+    with open(out / "composition.csv") as handle:
+        rows = list(csv.reader(handle))
+    assert rows[0] == ["t [s]", "region", "species 0", "species 1"]
+    table = np.array(rows[1:], float)
+    for t in np.unique(table[:, 0]):
+        at = table[table[:, 0] == t]
+        assert at.shape[0] == 10 and at[:, 2:].sum(axis=0).tolist() == [100, 100]
+    record = json.loads((out / "validation.json").read_text())
+    assert record["dem_regions"] == 4 and 0 <= record["compartment_share"] < 1
+    assert (out / "validation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,0 +1,164 @@
+"""Networks learned from cell sequences: counts, rates, bootstrap coverage, Markov test.
+
+The known-rates checks run the identity particle engine of :mod:`axialmix.particles` on a
+ring of cells with drift (a periodic section), track a tenth of the particles, and learn the
+rates back from their cell sequences. The true continuous-time rates of the tracked
+particles' chain are ``log P / dt`` with ``P`` the engine's one-step transition matrix.
+"""
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from axialmix.dem._learn import (
+    axial_cells,
+    block_count_matrices,
+    cell_length_limit,
+    count_matrix,
+    learn_network,
+    markov_test,
+    rates_from_counts,
+    sequences_from_particle_events,
+)
+from axialmix.network import CompartmentNetwork, backflow_chain_transport
+from axialmix.particles import ParticleNetwork, simulate
+
+N_CELLS, HOLDUP, FORWARD, BACKWARD, TRACKED, DT = 6, 200, 8, 4, 20, 0.01
+
+
+def _ring():
+    sources, targets, moves = [], [], []
+    for i in range(N_CELLS):
+        sources += [i, i]
+        targets += [(i + 1) % N_CELLS, (i - 1) % N_CELLS]
+        moves += [FORWARD, BACKWARD]
+    network = ParticleNetwork(np.full(N_CELLS, HOLDUP), sources, targets, moves, step_seconds=DT)
+    true = np.real(scipy.linalg.logm(network.step_matrix().T)) / DT
+    return network, (np.array(sources), np.array(targets)), true
+
+
+def _tracked_sequences(network, steps, seed, tracked=TRACKED):
+    initial = np.column_stack([np.full(N_CELLS, HOLDUP - tracked), np.full(N_CELLS, tracked)])
+    result = simulate(network, initial, steps, engine="identity", seed=seed, tracked_species=[1])
+    return sequences_from_particle_events(result, 1)
+
+
+def _coverage(repetitions, steps, block):
+    network, connections, true = _ring()
+    hits = []
+    for rep in range(repetitions):
+        sequences = _tracked_sequences(network, steps, seed=rep)
+        learned = learn_network(sequences, N_CELLS, DT, 1, block, n_bootstrap=200, seed=rep)
+        hits.append((learned.lower[connections] <= true[connections])
+                    & (true[connections] <= learned.upper[connections]))
+    return np.array(hits)
+
+
+def test_sequences_follow_the_particle_events():
+    network, _, _ = _ring()
+    sequences = _tracked_sequences(network, 300, seed=3)
+    assert sequences.shape == (301, N_CELLS * TRACKED)
+    # Each cell starts with its tracked particles, and the tracked total stays.
+    assert np.bincount(sequences[0], minlength=N_CELLS).tolist() == [TRACKED] * N_CELLS
+    assert np.all(np.bincount(sequences[-1], minlength=N_CELLS).sum() == N_CELLS * TRACKED)
+    # A particle moves at most one cell (either way round the ring) per step.
+    step = np.mod(np.diff(sequences, axis=0), N_CELLS)
+    assert set(np.unique(step).tolist()) <= {0, 1, N_CELLS - 1}
+
+
+def test_block_counts_sum_to_deeptime_counts():
+    rng = np.random.default_rng(0)
+    sequences = rng.integers(0, 5, size=(203, 17))
+    blocks = block_count_matrices(sequences, 5, 3, 20)
+    assert blocks.shape == (10, 5, 5)
+    np.testing.assert_array_equal(blocks.sum(axis=0), count_matrix(sequences[:203], 5, 3))
+    # Block 4 by hand.
+    a, b = sequences[80:100], sequences[83:103]
+    by_hand = np.zeros((5, 5))
+    np.add.at(by_hand, (a.ravel(), b.ravel()), 1)
+    np.testing.assert_array_equal(blocks[4], by_hand)
+
+
+def test_rates_recover_an_exact_transition_matrix():
+    # Counts proportional to exp(Q tau) give back Q.
+    q = np.array([[-3.0, 2.0, 1.0], [0.5, -1.5, 1.0], [0.2, 0.8, -1.0]])
+    counts = 1e6 * scipy.linalg.expm(q * 0.1)
+    rates, clipped = rates_from_counts(counts, 0.1)
+    np.testing.assert_allclose(rates, q, atol=1e-9)
+    assert clipped == 0
+
+
+def test_all_particles_tracked_give_the_exact_moves():
+    # Tracking every particle, the counts are the engine's fixed moves: T = P exactly.
+    network, connections, true = _ring()
+    sequences = _tracked_sequences(network, 400, seed=1, tracked=HOLDUP)
+    counts = count_matrix(sequences, N_CELLS, 1)
+    np.testing.assert_allclose(counts / counts.sum(axis=1, keepdims=True),
+                               network.step_matrix().T, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_bootstrap_intervals_cover_known_rates_quick():
+    # 20 repetitions x 12 rates; the full 100-repetition study is the opt-in test below. The
+    # bounds are wide because the 240 intervals are correlated within a repetition; a wrong
+    # truth (the first-order rates p / dt, 5 % off) or intervals without block structure
+    # fall far outside them.
+    hits = _coverage(20, 3000, 75)
+    assert 0.85 <= hits.mean() <= 0.995
+
+
+@pytest.mark.study
+def test_bootstrap_intervals_cover_known_rates_study():
+    hits = _coverage(100, 4000, 100)
+    print(f"coverage of the 95 % intervals: {hits.mean():.4f} over {hits.size} intervals; "
+          f"per rate {hits.mean(axis=0).min():.2f}-{hits.mean(axis=0).max():.2f}")
+    assert 0.90 <= hits.mean() <= 0.99
+
+
+def test_learned_network_file_round_trip_and_transport():
+    network, _, true = _ring()
+    sequences = _tracked_sequences(network, 2000, seed=5)
+    dx = 0.02
+    centres = (np.arange(N_CELLS) + 0.5) * dx
+    learned = learn_network(sequences, N_CELLS, DT, 1, 100, centres=centres,
+                            period=N_CELLS * dx)
+    text = learned.network().to_json()
+    again = CompartmentNetwork.from_json(text)
+    assert again.compartments == learned.names and not again.is_discrete
+    for c in again.connections:
+        assert c.rate == pytest.approx(learned.rates[again.index(c.source), again.index(c.target)])
+    # The particle engine runs the learned network as it is (hold-ups rounded to particles).
+    particles = ParticleNetwork.from_network(again, total_particles=1200, time_step=DT,
+                                             round_moves=True)
+    assert abs(particles.n_particles - 1200) <= N_CELLS  # hold-ups rounded one by one
+    # Equivalent ADM of the ring: near the exact chain (a - b) dx, (a + b) dx² / 2 (the
+    # log rates include small two-cell jumps, so the comparison is with the true log rates).
+    v, d = learned.transport()
+    a, b = true[0, 1], true[0, N_CELLS - 1]
+    v0, d0 = backflow_chain_transport(a, b, dx)
+    (vlo, vhi), (dlo, dhi) = learned.transport_interval()
+    assert vlo <= v <= vhi and dlo <= d <= dhi
+    assert v == pytest.approx(v0, rel=0.15) and d == pytest.approx(d0, rel=0.15)
+
+
+def test_markov_test_of_a_markov_chain_is_flat():
+    network, _, _ = _ring()
+    sequences = _tracked_sequences(network, 3000, seed=2)
+    test = markov_test(sequences, N_CELLS, DT, (1, 2, 4, 8), ck_steps=(2, 4))
+    # Implied time scales of a Markov chain do not depend on the lag.
+    np.testing.assert_allclose(test.timescales, np.broadcast_to(test.timescales[0],
+                               test.timescales.shape), rtol=0.1)
+    assert np.all(test.ck_error < 4 * test.ck_sampling + 1e-3)
+    assert "Chapman-Kolmogorov" in test.report()
+
+
+def test_axial_cells_and_cell_length_rule():
+    z = np.array([-0.01, 0.0, 0.049, 0.05, 0.499, 0.62])
+    assert axial_cells(z, 0.5, 10).tolist() == [0, 0, 0, 1, 9, 9]
+    assert axial_cells(z, 0.5, 10, periodic=True).tolist() == [9, 0, 0, 1, 9, 2]
+    r = np.array([0.0, 0.07, 0.0, 0.08, 0.0, 0.1])
+    cells = axial_cells(z, 0.5, 10, radius=r, vessel_radius=0.1, n_radial=2)
+    assert cells.tolist() == [0, 0, 0, 3, 18, 19]  # (0.07/0.1)² < 0.5 < (0.08/0.1)²
+    # 2 D_z / |v|: the trial's section, D_z 100 mm²/s, v -34 mm/s: about 6 mm cells.
+    assert cell_length_limit(-0.034, 100e-6) == pytest.approx(2 * 100e-6 / 0.034)
+    assert cell_length_limit(0.0, 1e-4) == float("inf")
