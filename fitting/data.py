@@ -292,6 +292,11 @@ def column_time_unit(table: Table, column: Column) -> str:
     for a unit that is not a time unit.
     """
     if column.unit is None:
+        # "time_days", "t_us": a time name with a suffix that is not a known unit.
+        stem, underscore, suffix = column.name.rpartition("_")
+        if underscore and stem in _TIME_NAMES and suffix:
+            raise table.error(f"unknown time unit {suffix!r} in {column.label!r} "
+                              f"(known: s, ms, min, h)")
         return "s"
     if column.unit.lower() not in _TIME_UNITS:
         raise table.error(f"unknown time unit {column.unit!r} in {column.label!r} "

@@ -60,8 +60,14 @@ def test_window_cases_without_return_without_excursion_and_with_two_excursions()
     small = diversion_window(unit, Disturbance.square(0.04, 30.0, 5.0), TIMES, **LIMITS)
     assert not bool(small.diverts)
     assert np.isnan(float(small.start)) and float(small.diverted_amount) == 0.0
-    lasting = diversion_window(unit, Disturbance.square(0.2, 1e6, 5.0), TIMES, **LIMITS)
+    # A lasting step leaves the content outside for good: the window has no end.
+    lasting = diversion_window(unit, Disturbance.step(0.2, 5.0), TIMES, **LIMITS)
     assert float(lasting.stop) == np.inf and float(lasting.diverted_amount) == np.inf
+    # A square ending after the scan: the scan is continued until the outlet settles, so
+    # the window is the exact one, not cut at the last given time.
+    late = diversion_window(unit, Disturbance.square(0.2, 200.0, 5.0), TIMES, **LIMITS)
+    assert float(late.stop) == pytest.approx(_tank_window(0.2, 200.0, 5.0)[1], rel=1e-12)
+    assert float(late.times[-1]) > 205.0
     twice = Disturbance.square(0.2, 10.0, 5.0) + Disturbance.square(0.2, 10.0, 60.0)
     window = diversion_window(unit, twice, TIMES, **LIMITS)
 

@@ -22,6 +22,8 @@ parameter distribution. Two conservative windows are offered:
 
 from __future__ import annotations
 
+import functools
+import os
 from collections.abc import Callable
 
 import equinox as eqx
@@ -38,14 +40,72 @@ from axialmix.line._throughput import FlowSchedule
 from axialmix.line._unit import Unit
 
 __all__ = [
+    "MAX_EVALUATIONS",
+    "MAX_FAILED_SHARE",
+    "SETTLED",
     "ConservativeDiversion",
+    "DiversionRefused",
+    "DiversionTooLarge",
     "DiversionWindow",
     "conservative_diversion_window",
     "diversion_window",
+    "memory_budget",
     "sample_units",
 ]
 
 _ROOT_STEPS = 24
+#: Output times evaluated together (the scan of any number of times runs in chunks of these).
+_CHUNK = 4096
+#: Bytes held per scan time (times, outlet, excess and masks as float64, with room).
+_BYTES_PER_TIME = 64
+#: Largest number of model evaluations (output times × disturbance events, over the scan and
+#: all samples) a diversion may ask for: about ten minutes at a microsecond each.
+MAX_EVALUATIONS = 5e8
+#: Largest share of covariance samples allowed to fail (no finite prediction, or an outlet
+#: that has not settled by the end of the longest scan) before the conservative window is
+#: refused: above it the window would be made of the samples that happened to work.
+MAX_FAILED_SHARE = 0.01
+#: The disturbance's effect counts as settled at the end of the scan when the share still to
+#: come, ``1 - F(end - last event)``, is at most this.
+SETTLED = 1e-4
+#: Doublings of the scan's span allowed to reach a settled outlet.
+_EXTENSIONS = 6
+#: Samples evaluated together in a batch unless memory asks for fewer.
+_BATCH = 64
+#: Scan times of one covariance sample: every k-th time of the scan, at least this many.
+SAMPLE_SCAN_POINTS = 256
+
+
+def memory_budget() -> int:
+    """Bytes a diversion may hold at once: a quarter of the machine's memory, at most 2 GiB."""
+    try:
+        physical = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        physical = 8 * 2**30
+    return int(min(2 * 2**30, physical // 4))
+
+
+class DiversionTooLarge(ValueError):
+    """A diversion whose scan or samples would exceed the memory or evaluation bounds.
+
+    `option` is ``"points"`` or ``"samples"``: what to reduce."""
+
+    def __init__(self, option: str, message: str):
+        super().__init__(message)
+        self.option = option
+
+
+class DiversionRefused(ValueError):
+    """A conservative window refused because too many covariance samples failed.
+
+    **Attributes:** `failed` (samples without a finite prediction or a settled outlet),
+    `nonfinite`, `unsettled`, `samples` (drawn)."""
+
+    def __init__(self, message: str, failed: int, nonfinite: int, unsettled: int,
+                 samples: int):
+        super().__init__(message)
+        self.failed, self.nonfinite, self.unsettled, self.samples = (
+            failed, nonfinite, unsettled, samples)
 
 
 class DiversionWindow(eqx.Module):
@@ -134,15 +194,31 @@ def _crossing(excess, low: Array, high: Array) -> Array:
     return jnp.where(jnp.abs(fa) < jnp.abs(fb), a, b)
 
 
+def _excess(content, lower, upper):
+    return jnp.maximum(content - upper, lower - content)
+
+
+def _outlet(evaluator, disturbance, times):
+    """The outlet deviation on 1-D `times`, in chunks of :data:`_CHUNK` times (bounded memory
+    for any number of times; one program)."""
+    n = times.shape[0]
+    if n <= _CHUNK:
+        return response_at(evaluator, disturbance, times)
+    chunks = -(-n // _CHUNK)
+    padded = jnp.concatenate([times, jnp.full(chunks * _CHUNK - n, times[-1])])
+    values = jax.lax.map(lambda part: response_at(evaluator, disturbance, part),
+                         padded.reshape(chunks, _CHUNK))
+    return values.reshape(-1)[:n]
+
+
 def _window(evaluator, disturbance, times, target, lower, upper, flow):
     """Start, stop, amount, diverts and the outlet content on the times (traceable)."""
-    outlet = target + response_at(evaluator, disturbance, times)
+    outlet = target + _outlet(evaluator, disturbance, times)
 
     def excess_at(t):
-        content = target + response_at(evaluator, disturbance, t)
-        return jnp.maximum(content - upper, lower - content)
+        return _excess(target + response_at(evaluator, disturbance, t), lower, upper)
 
-    out = jnp.maximum(outlet - upper, lower - outlet) > 0
+    out = _excess(outlet, lower, upper) > 0
     diverts = jnp.any(out)
     last_index = times.shape[0] - 1
     first = jnp.argmax(out)
@@ -165,9 +241,47 @@ def _window(evaluator, disturbance, times, target, lower, upper, flow):
     return start, stop, amount, diverts, outlet
 
 
+def _unsettled(evaluator, disturbance, end):
+    """``1 - F(end - last event)``: the share of the disturbance's effect still to come at
+    the end of the scan (0 for a disturbance without events)."""
+    events = disturbance.event_times()
+    if events.shape[0] == 0:
+        return jnp.asarray(0.0)
+    lag = end - jnp.max(events)
+    return jnp.where(lag > 0, 1.0 - evaluator.cumulative(jnp.maximum(lag, 0.0)), 1.0)
+
+
 @eqx.filter_jit
 def _window_jit(evaluator, disturbance, times, target, lower, upper, flow):
-    return _window(evaluator, disturbance, times, target, lower, upper, flow)
+    window = _window(evaluator, disturbance, times, target, lower, upper, flow)
+    return (*window, _unsettled(evaluator, disturbance, times[-1]))
+
+
+def _extended(times: np.ndarray, factor: float = 2.0) -> np.ndarray:
+    """`times` continued at their last spacing to `factor` times their span."""
+    step = float(times[-1] - times[-2])
+    span = float(times[-1] - times[0])
+    extra = max(1, int(np.ceil((factor - 1.0) * span / step)))
+    return np.concatenate([times, times[-1] + step * np.arange(1, extra + 1)])
+
+
+def _scan_budget(points: int, lags: int, what: str) -> None:
+    """Refuse a scan whose arrays or model evaluations exceed the stated bounds."""
+    memory = points * _BYTES_PER_TIME
+    if memory > memory_budget():
+        raise DiversionTooLarge(
+            "points", f"{what} of {points:,} times needs about {memory / 2**30:.3g} GiB, "
+            f"more than the {memory_budget() / 2**30:.3g} GiB allowed")
+    if points * lags > MAX_EVALUATIONS:
+        raise DiversionTooLarge(
+            "points", f"{what} of {points:,} times needs about {points * lags:.3g} model "
+            f"evaluations, more than the {MAX_EVALUATIONS:.3g} allowed")
+
+
+def _lags(disturbance: Disturbance) -> int:
+    """Model evaluations per output time of a disturbance's response."""
+    return max(1, int(disturbance.step_times.shape[0] + disturbance.pulse_times.shape[0]
+                      + sum(trace[0].shape[0] for trace in disturbance.traces)))
 
 
 def _check(rtd, disturbance, times, target, lower, upper, flow):
@@ -205,6 +319,7 @@ def diversion_window(
     flow: ArrayLike | FlowSchedule = 1.0,
     content_unit: str = "",
     amount_unit: str = "",
+    extend: bool = True,
 ) -> DiversionWindow:
     """When to start and stop diverting after a disturbance, and how much material that is.
 
@@ -224,20 +339,40 @@ def diversion_window(
     - `flow`: the outlet flow, a number (amount per time unit) or a
       :class:`~axialmix.line.FlowSchedule`.
     - `content_unit`, `amount_unit`: units carried to the result.
+    - `extend`: continue the scan past ``times[-1]`` (at its last spacing, doubling its span,
+      at most six times) until the disturbance's effect has settled: ``1 - F`` at the lag from
+      its last event to the end of the scan at most :data:`SETTLED`. Then the outlet content
+      no longer changes, so a window open at the end stays open (``stop = inf``) and none
+      starts later; a window is never cut by the end of `times`. A ValueError says when the
+      outlet has not settled after the doublings.
 
     **Returns:**
 
-    A :class:`DiversionWindow`.
+    A :class:`DiversionWindow` (its `times` are the scan's, extended or not).
+
+    **Raises:** :class:`DiversionTooLarge` for a scan of more than
+    :data:`MAX_EVALUATIONS` model evaluations or more memory than :func:`memory_budget`.
     """
     _check(rtd, disturbance, times, target, lower, upper, flow)
-    times = jnp.asarray(times, float)
-    evaluator = as_evaluator(rtd, lag_horizon(disturbance, times))
+    times = np.asarray(times, float)
     target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
-    start, stop, amount, diverts, outlet = _window_jit(
-        evaluator, disturbance, times, target, lower, upper, flow
-    )
+    lags = _lags(disturbance)
+    for _ in range(_EXTENSIONS + 1):
+        _scan_budget(times.shape[0], lags, "a scan")
+        evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(times)))
+        start, stop, amount, diverts, outlet, unsettled = _window_jit(
+            evaluator, disturbance, jnp.asarray(times), target, lower, upper, flow
+        )
+        if not extend or float(unsettled) <= SETTLED:
+            break
+        times = _extended(times)
+    else:
+        raise ValueError(
+            f"the outlet has not settled by {times[-1]:g} {rtd.time_unit} "
+            f"({float(unsettled):.2g} of the disturbance's effect still to come after "
+            f"{_EXTENSIONS} doublings of the scan); give later times")
     return DiversionWindow(
-        start, stop, amount, diverts, times, outlet, lower, upper,
+        start, stop, amount, diverts, jnp.asarray(times), outlet, lower, upper,
         rtd.time_unit, content_unit, amount_unit,
     )
 
@@ -268,16 +403,23 @@ def _draw(values, covariance, samples, seed, scale, region):
     if not isinstance(samples, int) or samples < 1:
         raise ValueError(f"samples must be a positive integer, got {samples!r}.")
     centre, root = _distribution(values, covariance, scale)
+    radius = None
+    if region is not None:
+        from scipy.special import gammaincinv  # chi²_p quantile, without scipy.stats' import
+
+        radius = float(np.sqrt(2.0 * gammaincinv(centre.shape[0] / 2.0, region)))
+    return _draw_jit(centre, root, samples, seed, scale, radius)
+
+
+@functools.partial(jax.jit, static_argnums=(2, 4, 5))
+def _draw_jit(centre, root, samples, seed, scale, radius):
     p = centre.shape[0]
     key_direction, key_radius = jax.random.split(jax.random.PRNGKey(seed))
     normal = jax.random.normal(key_direction, (samples, p))
-    if region is not None:
+    if radius is not None:
         # Half of the points on the surface of the region (radius sqrt(chi²_p(region)) in
         # whitened coordinates, where the extremes of a monotone map lie), half uniformly
         # inside it, and the centre.
-        from scipy.stats import chi2
-
-        radius = float(np.sqrt(chi2.ppf(region, p)))
         directions = normal / jnp.linalg.norm(normal, axis=1, keepdims=True)
         uniform = jax.random.uniform(key_radius, (samples,))
         inside = jnp.arange(samples) % 2 == 1
@@ -338,7 +480,11 @@ class ConservativeDiversion(eqx.Module):
     - `sample_starts`, `sample_stops`: their windows (``+inf``/``-inf`` for vectors that do
       not divert, NaN for vectors whose prediction is not finite).
     - `diverting_fraction`: share of the valid samples that divert.
-    - `valid_samples`: samples with a finite prediction (the others are left out).
+    - `valid_samples`: samples with a finite prediction whose outlet settled within the scan.
+    - `failed_samples`: the others (at most :data:`MAX_FAILED_SHARE` of the samples, or the
+      window is refused), left out of the window and counted here.
+    - `scan_end`: the end of the scan of the samples (time unit; past the given times when
+      the outlet had not settled there).
     - `time_unit`, `amount_unit`: units.
     """
 
@@ -353,6 +499,8 @@ class ConservativeDiversion(eqx.Module):
     sample_stops: Array
     diverting_fraction: Array
     valid_samples: int = eqx.field(static=True)
+    failed_samples: int = eqx.field(static=True, default=0)
+    scan_end: float = eqx.field(static=True, default=float("nan"))
     time_unit: str = eqx.field(static=True, default="s")
     amount_unit: str = eqx.field(static=True, default="")
 
@@ -369,23 +517,75 @@ class ConservativeDiversion(eqx.Module):
             "method": self.method,
             "samples": int(self.sample_parameters.shape[0]),
             "valid_samples": self.valid_samples,
+            "failed_samples": self.failed_samples,
+            "scan_end": _number(self.scan_end),
             "diverting_fraction": float(self.diverting_fraction),
             "time_unit": self.time_unit,
             "amount_unit": self.amount_unit,
         }
 
 
-@eqx.filter_jit
 def _sample_windows(unit_factory, parameters, disturbance, times, target, lower, upper, flow,
-                    horizon):
+                    horizon, batch):
+    """Window ends, diverts, finite and unsettled share of each sample, in batches of `batch`
+    vectors (one program: ``lax.map`` over batches of a vmapped window)."""
+
     def one(vector):
         evaluator = as_evaluator(unit_factory(vector), horizon)
         start, stop, _, diverts, outlet = _window(
             evaluator, disturbance, times, target, lower, upper, flow
         )
-        return start, stop, diverts, jnp.all(jnp.isfinite(outlet))
+        unsettled = _unsettled(evaluator, disturbance, times[-1])
+        return start, stop, diverts, jnp.all(jnp.isfinite(outlet)), unsettled
 
-    return jax.vmap(one)(parameters)
+    return jax.lax.map(one, parameters, batch_size=batch)
+
+
+_PROGRAMS: dict = {}
+
+
+def _program(args: tuple, batch: int):
+    """The compiled sample program for `args` and `batch` with its temporary memory (bytes),
+    compiled once per structure and shapes."""
+    leaves, structure = jax.tree_util.tree_flatten(args)
+    key = (structure, batch, tuple(
+        (np.shape(leaf), str(np.asarray(leaf).dtype)) if eqx.is_array(leaf) else
+        ("static", leaf) for leaf in leaves))
+    if key not in _PROGRAMS:
+        compiled = eqx.filter_jit(_sample_windows).lower(*args, batch).compile()
+        analysis = compiled.compiled.memory_analysis()
+        temp = int(getattr(analysis, "temp_size_in_bytes", 0) or 0) if analysis else 0
+        if len(_PROGRAMS) > 32:
+            _PROGRAMS.clear()
+        _PROGRAMS[key] = (compiled, temp)
+    return _PROGRAMS[key]
+
+
+def _sample_scan(times: np.ndarray) -> np.ndarray:
+    """Every k-th time of the scan (and its last), at least :data:`SAMPLE_SCAN_POINTS`."""
+    step = max(1, (times.shape[0] - 1) // (SAMPLE_SCAN_POINTS - 1))
+    picked = times[::step]
+    return picked if picked[-1] == times[-1] else np.append(picked, times[-1])
+
+
+def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lower, upper,
+                      flow, horizon):
+    """Run the sample program in batches sized to :func:`memory_budget`."""
+    count = parameters.shape[0]
+    batch = min(_BATCH, count)
+    budget = memory_budget()
+    while True:
+        args = (unit_factory, parameters, disturbance, jnp.asarray(times), target, lower,
+                upper, flow, horizon)
+        compiled, temp = _program(args, batch)
+        if temp <= budget or batch == 1:
+            break
+        batch = max(1, int(batch * budget / temp))
+    if temp > budget:
+        raise DiversionTooLarge(
+            "points", f"one covariance sample over {times.shape[0]:,} scan times needs about "
+            f"{temp / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB allowed")
+    return compiled(*args, batch)
 
 
 def conservative_diversion_window(
@@ -406,6 +606,7 @@ def conservative_diversion_window(
     scale: str = "linear",
     content_unit: str = "",
     amount_unit: str = "",
+    max_failed_share: float = MAX_FAILED_SHARE,
 ) -> ConservativeDiversion:
     """A diversion window that covers the true one with a stated probability, by sampling.
 
@@ -434,33 +635,79 @@ def conservative_diversion_window(
     - `seed`: random seed.
     - `scale`: ``"linear"`` or ``"log"`` (see :func:`sample_units`).
     - `content_unit`, `amount_unit`: units of the content and of the diverted amount.
+    - `max_failed_share`: largest share of samples allowed to fail (no finite prediction, or
+      an outlet not settled at the end of the longest scan); above it the window is refused.
+
+    The nominal window's scan is extended until its outlet has settled (see
+    :func:`diversion_window`); the samples are scanned on every k-th of its times (at least
+    :data:`SAMPLE_SCAN_POINTS`; their crossings are then located exactly on the model), and
+    the scan is extended further while some sample has not settled. Samples run in batches
+    whose memory, measured from the compiled program before any work, stays within
+    :func:`memory_budget`.
 
     **Returns:**
 
-    A :class:`ConservativeDiversion`.
+    A :class:`ConservativeDiversion`, with the failed samples counted.
+
+    **Raises:** :class:`DiversionRefused` when more than `max_failed_share` of the samples
+    fail (the window is never made of the samples that happened to work);
+    :class:`DiversionTooLarge` when the samples and scan would exceed
+    :data:`MAX_EVALUATIONS` model evaluations or the memory budget (before any work).
     """
     if not 0.0 < coverage < 1.0:
         raise ValueError(f"coverage must lie between 0 and 1, got {coverage!r}.")
     if method not in ("region", "quantile"):
         raise ValueError(f"method must be 'region' or 'quantile', got {method!r}.")
+    if not 0.0 <= max_failed_share < 1.0:
+        raise ValueError(f"max_failed_share must lie in [0, 1), got {max_failed_share!r}.")
     nominal = diversion_window(
         unit_factory(jnp.atleast_1d(jnp.asarray(values, float))), disturbance, times,
         target=target, lower=lower, upper=upper, flow=flow, content_unit=content_unit,
         amount_unit=amount_unit,
     )
+    lags = _lags(disturbance)
+    scan = _sample_scan(np.asarray(nominal.times))
+    if isinstance(samples, int) and samples * scan.shape[0] * lags > MAX_EVALUATIONS:
+        raise DiversionTooLarge(
+            "samples", f"{samples:,} samples over {scan.shape[0]:,} scan times need about "
+            f"{samples * scan.shape[0] * lags:.3g} model evaluations, more than the "
+            f"{MAX_EVALUATIONS:.3g} allowed")
     parameters = _draw(values, covariance, samples, seed, scale,
                        coverage if method == "region" else None)
-    times = jnp.asarray(times, float)
     target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
-    starts, stops, diverts, finite = _sample_windows(
-        unit_factory, parameters, disturbance, times, target, lower, upper, flow,
-        float(lag_horizon(disturbance, times)),  # static: a measured curve's grid needs it
-    )
-    starts = jnp.where(finite, jnp.where(diverts, starts, jnp.inf), jnp.nan)
-    stops = jnp.where(finite, jnp.where(diverts, stops, -jnp.inf), jnp.nan)
-    valid = np.asarray(finite)
-    if not valid.any():
-        raise ValueError("no sampled parameter vector gives a finite prediction.")
+    full = np.asarray(nominal.times)
+    for extension in range(_EXTENSIONS + 1):
+        starts, stops, diverts, finite, unsettled = _evaluate_samples(
+            unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
+            float(lag_horizon(disturbance, jnp.asarray(scan))),  # static: a measured grid
+        )
+        finite, unsettled = np.asarray(finite), np.asarray(unsettled)
+        late = finite & ~(unsettled <= SETTLED)
+        if not late.any() or extension == _EXTENSIONS:
+            break
+        # Slower samples: continue the scan (at the nominal spacing) and scan them again.
+        full = _extended(full)
+        if samples * _sample_scan(full).shape[0] * lags > MAX_EVALUATIONS:
+            break
+        scan = _sample_scan(full)
+    nonfinite = int((~finite).sum())
+    unsettled_count = int(late.sum())
+    failed = nonfinite + unsettled_count
+    if failed > max_failed_share * samples:
+        reasons = []
+        if nonfinite:
+            reasons.append(f"{nonfinite} give no finite outlet prediction")
+        if unsettled_count:
+            reasons.append(f"{unsettled_count} have not settled by {scan[-1]:g} "
+                           f"{nominal.time_unit}")
+        raise DiversionRefused(
+            f"{failed} of {samples} samples ({failed / samples:.1%}, more than the "
+            f"{max_failed_share:.0%} allowed) fail: {' and '.join(reasons)}; the parameter "
+            "distribution reaches values where the model has no usable prediction, so no "
+            "conservative window is given", failed, nonfinite, unsettled_count, samples)
+    valid = finite & ~late
+    starts = jnp.where(valid, jnp.where(diverts, starts, jnp.inf), jnp.nan)
+    stops = jnp.where(valid, jnp.where(diverts, stops, -jnp.inf), jnp.nan)
     kept_starts = np.asarray(starts)[valid]
     kept_stops = np.asarray(stops)[valid]
     if method == "region":
@@ -488,6 +735,8 @@ def conservative_diversion_window(
         stops,
         jnp.asarray(np.asarray(diverts)[valid].mean()),
         int(valid.sum()),
+        failed,
+        float(scan[-1]),
         nominal.time_unit,
         amount_unit,
     )
