@@ -24,8 +24,8 @@ Format accepted:
   baseline, are kept down to the limit the curve's own noise sets (:func:`negative_limit`:
   6 robustly estimated noise standard deviations, at least 5 % and at most 25 % of the
   peak). A value further below zero is not noise (a wrong column, a sign error, a baseline
-  subtracted twice) and is refused with its row. Sparse, non-uniform sampling is fine, and a tail cut
-  before the curve has decayed only gives a :class:`DataWarning`.
+  subtracted twice) and is refused with its row. Sparse, non-uniform sampling is fine, and
+  a tail cut before the curve has decayed only gives a :class:`DataWarning`.
 
 Fitting uses the raw values (``normalise=False``) with the measurement model of
 :mod:`fitting.measurement`, whose amplitude absorbs the tracer amount: dividing the samples by
@@ -46,7 +46,8 @@ import numpy as np
 
 from axialmix._csv import Column, DataError, Table, read_table
 
-__all__ = ["MAX_NEGATIVE_FRACTION", "NEGATIVE_FRACTION", "NOISE_SIGMAS", "TIME_UNIT_SECONDS", "Curve", "DataError", "DataWarning",
+__all__ = ["MAX_NEGATIVE_FRACTION", "NEGATIVE_FRACTION", "NOISE_SIGMAS", "TIME_UNIT_SECONDS",
+           "Curve", "DataError", "DataWarning",
            "as_curve", "column_time_unit", "curve_columns", "input_files", "read_inlet_csv",
            "negative_limit", "noise_level", "read_many", "read_rtd_csv", "seconds_per",
            "validated_curve"]

@@ -175,12 +175,12 @@ def _case_fit_underscore_cell(tmp):
 
 def _case_fit_all_fixed(tmp):
     return (["fit", str(_adm_csv(tmp / "c.csv")), "--fix", "tau=7", "--fix", "peclet=20",
-             "--fix", "amplitude=1.3", "--out", str(tmp / "out")], "free")
+             "--fix", "amplitude=1.3", "--out", str(tmp / "out")], "fixed")
 
 
 def _case_fit_tie_cycle(tmp):
     return (["fit", str(_adm_csv(tmp / "c.csv")), "--model", "four-compartment", "--tie",
-             "k_f=k_r", "--tie", "k_r=k_f", "--out", str(tmp / "out")], "--tie")
+             "k_f=k_r", "--tie", "k_r=k_f", "--out", str(tmp / "out")], "tie")
 
 
 def _case_fit_too_few_points(tmp):
@@ -293,8 +293,9 @@ def test_study_with_one_noise_dip_fits_every_curve(tmp_path, capsys):
     status = main(["fit", str(study), "--curve-column", "run", "--out", str(tmp_path / "o")])
     capsys.readouterr()
     assert status == 0
-    rows = [json.loads(line) for line in
-            (tmp_path / "o" / "summary.jsonl").read_text().splitlines() if line.strip()]
+    lines = (tmp_path / "o" / "summary.jsonl").read_text().splitlines()
+    header, *rows = [json.loads(line) for line in lines if line.strip()]
+    assert header["n_curves"] == 6
     assert len(rows) == 6
 
 

@@ -167,13 +167,17 @@ def _amount(flow, start: Array, stop: Array) -> Array:
 
 
 def _crossing(excess, low: Array, high: Array) -> Array:
-    """The sign change of `excess` in [low, high] (signs differ at the ends), to round-off.
+    """The sign changes of `excess` in the brackets [low, high] (1-D arrays of brackets whose
+    ends differ in sign), to round-off.
 
     Illinois' regula falsi: the bracket is kept, and an end that stays twice has its value
     halved, so convergence is superlinear (about 1e-15 of the bracket after a dozen steps
     for a smooth excess; a fixed number of steps keeps it traceable and vmappable).
     """
-    f_low, f_high = excess(low), excess(high)
+    # One evaluation site for both ends (and, in the loop, one for the guesses): the model's
+    # program appears twice in the compiled code, not four times.
+    ends = excess(jnp.concatenate([low, high]))
+    f_low, f_high = ends[: low.shape[0]], ends[low.shape[0]:]
 
     def body(_, state):
         a, b, fa, fb, side = state
@@ -189,7 +193,7 @@ def _crossing(excess, low: Array, high: Array) -> Array:
         return new_a, new_b, new_fa, new_fb, jnp.where(same_as_a, 1, -1)
 
     a, b, fa, fb, _ = jax.lax.fori_loop(
-        0, _ROOT_STEPS, body, (low, high, f_low, f_high, jnp.asarray(0))
+        0, _ROOT_STEPS, body, (low, high, f_low, f_high, jnp.zeros(low.shape, int))
     )
     return jnp.where(jnp.abs(fa) < jnp.abs(fb), a, b)
 
@@ -223,16 +227,14 @@ def _window(evaluator, disturbance, times, target, lower, upper, flow):
     last_index = times.shape[0] - 1
     first = jnp.argmax(out)
     last = last_index - jnp.argmax(out[::-1])
-    start = jnp.where(
-        first == 0,
-        times[0],
-        _crossing(excess_at, times[jnp.maximum(first - 1, 0)], times[first]),
+    # The exit and the return, located together (vectorised over the two brackets).
+    roots = _crossing(
+        excess_at,
+        jnp.stack([times[jnp.maximum(first - 1, 0)], times[last]]),
+        jnp.stack([times[first], times[jnp.minimum(last + 1, last_index)]]),
     )
-    stop = jnp.where(
-        last == last_index,
-        jnp.inf,
-        _crossing(excess_at, times[last], times[jnp.minimum(last + 1, last_index)]),
-    )
+    start = jnp.where(first == 0, times[0], roots[0])
+    stop = jnp.where(last == last_index, jnp.inf, roots[1])
     amount = jnp.where(stop == jnp.inf, jnp.inf, _amount(flow, start, jnp.where(
         stop == jnp.inf, start, stop)))
     start = jnp.where(diverts, start, jnp.nan)
@@ -574,7 +576,12 @@ def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lowe
     count = parameters.shape[0]
     batch = min(_BATCH, count)
     budget = memory_budget()
+    original = parameters
     while True:
+        # Whole batches only (a remainder would be a second copy of the program): the last
+        # batch is filled with copies of the first vector, whose results are dropped.
+        padding = -count % batch
+        parameters = jnp.concatenate([original, jnp.repeat(original[:1], padding, axis=0)])
         args = (unit_factory, parameters, disturbance, jnp.asarray(times), target, lower,
                 upper, flow, horizon)
         compiled, temp = _program(args, batch)
@@ -585,7 +592,8 @@ def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lowe
         raise DiversionTooLarge(
             "points", f"one covariance sample over {times.shape[0]:,} scan times needs about "
             f"{temp / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB allowed")
-    return compiled(*args, batch)
+    results = compiled(*args, batch)
+    return tuple(result[:count] for result in results)
 
 
 def conservative_diversion_window(

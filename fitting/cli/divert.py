@@ -243,6 +243,9 @@ def run(args: argparse.Namespace) -> int:
 
     from axialmix._files import write_json
     from axialmix.line import Disturbance, conservative_diversion_window, diversion_window
+    from fitting.solve import enable_compilation_cache
+
+    enable_compilation_cache()  # compiled programs kept on disk for the next run
 
     unit = fitted.unit()
     time_unit, content_unit = fitted.time_unit, args.content_unit

@@ -344,6 +344,9 @@ def run(args: argparse.Namespace) -> int:
 
     from axialmix._files import write_json
     from axialmix.line import funnel
+    from fitting.solve import enable_compilation_cache
+
+    enable_compilation_cache()  # compiled programs kept on disk for the next run
 
     unit = fitted.unit()
     result = funnel(unit, np.asarray(durations), np.asarray(magnitudes),
