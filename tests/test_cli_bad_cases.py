@@ -318,7 +318,7 @@ def test_summary_that_is_a_directory_is_refused(tmp_path, capsys):
 
 
 def test_api_refuses_an_unknown_parameter_name():
-    from fitting import fit
+    from fitting.fit import fit
 
     t = np.linspace(0.0, 40.0, 81)
     y = np.asarray(exit_age_closed(t, 7.0, 20.0))
@@ -329,7 +329,8 @@ def test_api_refuses_an_unknown_parameter_name():
 # ------------------------------------------------------------------ through a process
 def _axialmix(args, cwd):
     env = {**os.environ, "PYTHONWARNINGS": "default"}
-    return subprocess.run([sys.executable, "-m", "fitting.cli", *args], cwd=cwd, env=env,
+    program = "import sys; from fitting.cli import main; sys.exit(main(sys.argv[1:]))"
+    return subprocess.run([sys.executable, "-c", program, *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=600)
 
 

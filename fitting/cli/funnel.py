@@ -161,6 +161,10 @@ def _covariance(record: Mapping[str, Any], free: Sequence[str], source: str) -> 
     if any(e is None or not math.isfinite(e) for e in errors):
         raise OptionError(f"{source}: the fit has no standard error for some of "
                           f"{', '.join(free)}")
+    for name, error in zip(free, errors, strict=True):
+        if not math.isfinite(float(error) * float(error)):
+            raise OptionError(f"{source}: the standard error {error:g} of {name} has no "
+                              "finite square (variance); the fit's covariance is unusable")
     size = len(names)
     if (not isinstance(matrix, list) or len(matrix) != size
             or any(not isinstance(row, list) or len(row) != size for row in matrix)):
@@ -290,6 +294,7 @@ def rtd_from_options(args: argparse.Namespace):
     else:
         raise OptionError(f"--model {model}: no such model or file (models: "
                           + ", ".join(LINE_MODELS) + ")")
+    _check_ranges(fitted, "--set" if source is None else source, overrides)
     errors = dict(zip(fitted.free, [float(e) for e in fitted.standard_errors], strict=True))
     description = {
         "model": model,
@@ -302,6 +307,20 @@ def rtd_from_options(args: argparse.Namespace):
         "time_unit": fitted.time_unit,
     }
     return fitted, description
+
+
+def _check_ranges(fitted, source: str, overrides: Mapping[str, float]) -> None:
+    """Refuse a Peclet number or tank count outside the range where the models are verified
+    (beyond it their curves may be wrong without a sign: Pe 1e308 gives a zero response)."""
+    from axialmix.analytic.responses import _PECLET_RANGE, _TANKS_RANGE
+
+    ranges = {"peclet": _PECLET_RANGE, "n_tanks": _TANKS_RANGE}
+    for name, value in zip(fitted.parameter_names, fitted.values.tolist(), strict=True):
+        if name in ranges and not ranges[name][0] <= value <= ranges[name][1]:
+            where = f"--set {name}" if name in overrides else source
+            low, high = ranges[name]
+            raise OptionError(f"{where}: {name} = {value:g} is outside {low:g} to {high:g}, "
+                              "the range where the model's curves are verified")
 
 
 def check_output(option: str, path: str | None) -> None:
