@@ -8,6 +8,7 @@ from scipy.integrate import quad
 from scipy.optimize import brentq, curve_fit
 
 from axialmix.line import (
+    DiversionRefused,
     Disturbance,
     FlowSchedule,
     Line,
@@ -254,3 +255,29 @@ def test_conservative_window_covers_the_true_window_over_200_simulated_fits():
         f"true window {float(reference.stop - reference.start):.3f}"
     )
     assert counts["region"] / experiments >= 0.9
+
+
+def test_conservative_window_is_monotone_in_the_covariance():
+    # Property: a larger covariance (the same one scaled by k > 1, the same seed) never gives
+    # a narrower conservative window; once the samples reach parameters where the model has
+    # no finite prediction the window is refused, never made of the samples that worked.
+    disturbance = Disturbance.square(0.2, 20.0, 10.0)
+    times = np.linspace(0.0, 300.0, 301)
+    rng = np.random.default_rng(11)
+    for case in range(2):
+        root = rng.normal(size=(2, 2)) * [0.02, 0.05]
+        covariance = root @ root.T + np.diag([1e-4, 1e-4])  # of log tau, log Pe
+        values = [rng.uniform(40.0, 80.0), rng.uniform(10.0, 60.0)]
+        previous = None
+        for k in (1.0, 3.0, 100.0, 1e4, 1e8):
+            try:
+                window = conservative_diversion_window(
+                    _closed_closed, values, k * covariance, disturbance, times,
+                    samples=64, seed=case, scale="log", **LIMITS)
+            except DiversionRefused as refused:
+                assert refused.failed > 0.01 * 64
+                break
+            start, stop = float(window.start), float(window.stop)
+            if previous is not None:
+                assert start <= previous[0] and stop >= previous[1], (case, k, previous)
+            previous = (start, stop)

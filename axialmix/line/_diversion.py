@@ -563,9 +563,14 @@ def _program(args: tuple, batch: int):
     return _PROGRAMS[key]
 
 
-def _sample_scan(times: np.ndarray) -> np.ndarray:
-    """Every k-th time of the scan (and its last), at least :data:`SAMPLE_SCAN_POINTS`."""
-    step = max(1, (times.shape[0] - 1) // (SAMPLE_SCAN_POINTS - 1))
+def _sample_step(given: int) -> int:
+    """k of the samples' scan: every k-th time of a scan of `given` times keeps at least
+    :data:`SAMPLE_SCAN_POINTS` of them (the same k over an extended scan: its spacing stays)."""
+    return max(1, (given - 1) // (SAMPLE_SCAN_POINTS - 1))
+
+
+def _sample_scan(times: np.ndarray, step: int) -> np.ndarray:
+    """Every `step`-th time of the scan, and its last."""
     picked = times[::step]
     return picked if picked[-1] == times[-1] else np.append(picked, times[-1])
 
@@ -647,9 +652,10 @@ def conservative_diversion_window(
       an outlet not settled at the end of the longest scan); above it the window is refused.
 
     The nominal window's scan is extended until its outlet has settled (see
-    :func:`diversion_window`); the samples are scanned on every k-th of its times (at least
-    :data:`SAMPLE_SCAN_POINTS`; their crossings are then located exactly on the model), and
-    the scan is extended further while some sample has not settled. Samples run in batches
+    :func:`diversion_window`); the samples are scanned on every k-th of its times (k such that
+    the given `times` keep at least :data:`SAMPLE_SCAN_POINTS`; their crossings are then
+    located exactly on the model), and the scan is extended further, at the same spacing,
+    while some sample has not settled. Samples run in batches
     whose memory, measured from the compiled program before any work, stays within
     :func:`memory_budget`.
 
@@ -674,7 +680,8 @@ def conservative_diversion_window(
         amount_unit=amount_unit,
     )
     lags = _lags(disturbance)
-    scan = _sample_scan(np.asarray(nominal.times))
+    step = _sample_step(np.shape(times)[0])
+    scan = _sample_scan(np.asarray(nominal.times), step)
     if isinstance(samples, int) and samples * scan.shape[0] * lags > MAX_EVALUATIONS:
         raise DiversionTooLarge(
             "samples", f"{samples:,} samples over {scan.shape[0]:,} scan times need about "
@@ -695,9 +702,9 @@ def conservative_diversion_window(
             break
         # Slower samples: continue the scan (at the nominal spacing) and scan them again.
         full = _extended(full)
-        if samples * _sample_scan(full).shape[0] * lags > MAX_EVALUATIONS:
+        if samples * _sample_scan(full, step).shape[0] * lags > MAX_EVALUATIONS:
             break
-        scan = _sample_scan(full)
+        scan = _sample_scan(full, step)
     nonfinite = int((~finite).sum())
     unsettled_count = int(late.sum())
     failed = nonfinite + unsettled_count
