@@ -8,8 +8,8 @@ from scipy.integrate import quad
 from scipy.optimize import brentq, curve_fit
 
 from axialmix.line import (
-    DiversionRefused,
     Disturbance,
+    DiversionRefused,
     FlowSchedule,
     Line,
     Unit,
