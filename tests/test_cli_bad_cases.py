@@ -186,7 +186,7 @@ def _case_fit_tie_cycle(tmp):
 def _case_fit_too_few_points(tmp):
     path = tmp / "c.csv"
     path.write_text("time_s,conc\n1,0.5\n")
-    return (["fit", str(path), "--out", str(tmp / "out")], "c.csv")
+    return (["fit", str(path), "--out", str(tmp / "out")], "row 2")
 
 
 def _case_study_workers_1000(tmp):
