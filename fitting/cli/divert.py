@@ -25,8 +25,14 @@ The RTD is ``--model`` with ``--set`` (as for ``axialmix funnel``), or a fit's J
 fit's covariance makes the window uncertain: the conservative window covers the window of
 the true RTD with probability ``--coverage`` (:func:`axialmix.line.conservative_diversion_window`,
 ``--method region``: earliest start and latest stop over ``--samples`` parameter vectors
-filling the fit's confidence region, log-normal for positive parameters). Exit status: 0
-done, 2 bad input (one line, nothing written).
+filling the fit's confidence region, log-normal for positive parameters). Samples whose
+prediction is not finite, or whose outlet has not settled by the end of the scan, are counted
+(``failed_samples`` in the JSON); past 1 % of them the conservative window is refused (exit 2,
+one line with the nominal window) rather than made of the samples that worked. The scan runs
+to ``--until`` at least and continues, at the same spacing, until the disturbance's effect has
+settled, so no window is cut by it. ``--points`` and ``--samples`` are bounded (1,000,000
+each, and the library's bound on model evaluations and memory), refused up front with the
+estimate. Exit status: 0 done, 2 bad input (one line, nothing written).
 """
 
 from __future__ import annotations
