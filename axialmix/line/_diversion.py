@@ -259,6 +259,30 @@ def _window_jit(evaluator, disturbance, times, target, lower, upper, flow):
     return (*window, _unsettled(evaluator, disturbance, times[-1]))
 
 
+def _candidate_ends(times: np.ndarray) -> np.ndarray:
+    """The ends of the scan doubled 0 to :data:`_EXTENSIONS` times."""
+    span = float(times[-1] - times[0])
+    return times[0] + span * 2.0 ** np.arange(_EXTENSIONS + 1)
+
+
+@eqx.filter_jit
+def _settle_jit(evaluator, disturbance, ends):
+    return jax.vmap(lambda end: _unsettled(evaluator, disturbance, end))(ends)
+
+
+def _sample_settle(unit_factory, parameters, disturbance, ends, horizon, batch):
+    """``1 - F`` at each candidate end for each sample ``(samples, ends)``, in batches."""
+
+    def one(vector):
+        evaluator = as_evaluator(unit_factory(vector), horizon)
+        return jax.vmap(lambda end: _unsettled(evaluator, disturbance, end))(ends)
+
+    return jax.lax.map(one, parameters, batch_size=batch)
+
+
+_sample_settle_jit = eqx.filter_jit(_sample_settle)
+
+
 def _extended(times: np.ndarray, factor: float = 2.0) -> np.ndarray:
     """`times` continued at their last spacing to `factor` times their span."""
     step = float(times[-1] - times[-2])
@@ -359,20 +383,24 @@ def diversion_window(
     times = np.asarray(times, float)
     target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
     lags = _lags(disturbance)
-    for _ in range(_EXTENSIONS + 1):
-        _scan_budget(times.shape[0], lags, "a scan")
-        evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(times)))
-        start, stop, amount, diverts, outlet, unsettled = _window_jit(
-            evaluator, disturbance, jnp.asarray(times), target, lower, upper, flow
-        )
-        if not extend or float(unsettled) <= SETTLED:
-            break
-        times = _extended(times)
-    else:
-        raise ValueError(
-            f"the outlet has not settled by {times[-1]:g} {rtd.time_unit} "
-            f"({float(unsettled):.2g} of the disturbance's effect still to come after "
-            f"{_EXTENSIONS} doublings of the scan); give later times")
+    if extend:
+        # The end the scan needs, found first (one small program over the candidate ends),
+        # so that the window's program is compiled once, for the scan it runs on.
+        ends = _candidate_ends(times)
+        evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(ends)))
+        unsettled = np.asarray(_settle_jit(evaluator, disturbance, jnp.asarray(ends)))
+        settled = np.flatnonzero(unsettled <= SETTLED)
+        if settled.size == 0:
+            raise ValueError(
+                f"the outlet has not settled by {ends[-1]:g} {rtd.time_unit} "
+                f"({float(unsettled[-1]):.2g} of the disturbance's effect still to come after "
+                f"{_EXTENSIONS} doublings of the scan); give later times")
+        times = _extended(times, 2.0 ** int(settled[0])) if settled[0] else times
+    _scan_budget(times.shape[0], lags, "a scan")
+    evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(times)))
+    start, stop, amount, diverts, outlet, _ = _window_jit(
+        evaluator, disturbance, jnp.asarray(times), target, lower, upper, flow
+    )
     return DiversionWindow(
         start, stop, amount, diverts, jnp.asarray(times), outlet, lower, upper,
         rtd.time_unit, content_unit, amount_unit,
@@ -691,20 +719,29 @@ def conservative_diversion_window(
                        coverage if method == "region" else None)
     target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
     full = np.asarray(nominal.times)
-    for extension in range(_EXTENSIONS + 1):
-        starts, stops, diverts, finite, unsettled = _evaluate_samples(
-            unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
-            float(lag_horizon(disturbance, jnp.asarray(scan))),  # static: a measured grid
-        )
-        finite, unsettled = np.asarray(finite), np.asarray(unsettled)
-        late = finite & ~(unsettled <= SETTLED)
-        if not late.any() or extension == _EXTENSIONS:
-            break
-        # Slower samples: continue the scan (at the nominal spacing) and scan them again.
-        full = _extended(full)
-        if samples * _sample_scan(full, step).shape[0] * lags > MAX_EVALUATIONS:
-            break
-        scan = _sample_scan(full, step)
+    horizon_args = jnp.asarray(_candidate_ends(full))
+    # The end each sample needs, first (a small program: F at the candidate ends), then the
+    # windows of all samples on one scan to the latest end any of them needs.
+    batch = min(_BATCH, parameters.shape[0])
+    padding = -parameters.shape[0] % batch
+    padded = jnp.concatenate([parameters, jnp.repeat(parameters[:1], padding, axis=0)])
+    settle = np.asarray(_sample_settle_jit(
+        unit_factory, padded, disturbance, horizon_args,
+        float(lag_horizon(disturbance, horizon_args)), batch))[: parameters.shape[0]]
+    reaches = settle <= SETTLED
+    needed = np.where(reaches.any(axis=1), np.argmax(reaches, axis=1), _EXTENSIONS)
+    doublings = int(needed[np.isfinite(settle).all(axis=1)].max(initial=0))
+    while doublings and samples * _sample_scan(
+            _extended(full, 2.0 ** doublings), step).shape[0] * lags > MAX_EVALUATIONS:
+        doublings -= 1  # the latest samples then count as not settled
+    if doublings:
+        scan = _sample_scan(_extended(full, 2.0 ** doublings), step)
+    starts, stops, diverts, finite, unsettled = _evaluate_samples(
+        unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
+        float(lag_horizon(disturbance, jnp.asarray(scan))),  # static: a measured grid
+    )
+    finite, unsettled = np.asarray(finite), np.asarray(unsettled)
+    late = finite & ~(unsettled <= SETTLED)
     nonfinite = int((~finite).sum())
     unsettled_count = int(late.sum())
     failed = nonfinite + unsettled_count
