@@ -48,7 +48,8 @@ from axialmix._csv import Column, DataError, Table, read_table
 
 __all__ = ["MAX_NEGATIVE_FRACTION", "NEGATIVE_FRACTION", "NOISE_SIGMAS", "TIME_UNIT_SECONDS",
            "Curve", "DataError", "DataWarning",
-           "as_curve", "column_time_unit", "curve_columns", "input_files", "read_inlet_csv",
+           "as_curve", "column_time_unit", "curve_columns", "first_non_finite", "input_files",
+           "read_inlet_csv",
            "negative_limit", "noise_level", "read_many", "read_rtd_csv", "seconds_per",
            "validated_curve"]
 
@@ -88,6 +89,27 @@ SMALLEST_PEAK, LARGEST_VALUE = 1e-200, 1e200
 #: 1/span and its derivative in the time scale about 1/span², so beyond these the squared
 #: residuals and the curvature over- or underflow float64.
 TIME_SPAN_RANGE = (1e-100, 1e100)
+
+
+def first_non_finite(record, where: str = "") -> str | None:
+    """The path (``a.b[2]``) of the first non-finite float in a JSON-bound record, or None.
+
+    **Arguments:** `record`, nested dicts, lists and numbers; `where`, the path so far.
+    """
+    if isinstance(record, float) and not math.isfinite(record):
+        return where or "value"
+    if isinstance(record, dict):
+        items = ((f"{where}.{key}" if where else str(key), value)
+                 for key, value in record.items())
+    elif isinstance(record, list | tuple):
+        items = ((f"{where}[{index}]", value) for index, value in enumerate(record))
+    else:
+        return None
+    for path, value in items:
+        found = first_non_finite(value, path)
+        if found is not None:
+            return found
+    return None
 
 
 def noise_level(value: np.ndarray) -> float:

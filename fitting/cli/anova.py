@@ -117,13 +117,13 @@ def run(args: argparse.Namespace) -> int:
         return _exits.error_line(_COMMAND, error.compact())
     except ValueError as error:
         return _exits.error_line(_COMMAND, f"{args.table}: {error}")
-    from fitting.cli.funnel import OptionError, require_finite_record
+    from fitting.data import first_non_finite
 
     record = result.to_dict()
-    try:
-        require_finite_record(record)
-    except OptionError as error:
-        return _exits.error_line(_COMMAND, f"{args.table}: {error}")
+    where = first_non_finite(record)
+    if where is not None:
+        return _exits.error_line(_COMMAND, f"{args.table}: the result {where} is not a finite "
+                                 "number; nothing written")
     print(result.report())
     if args.json is not None:
         write_json(args.json, record)

@@ -116,17 +116,13 @@ def numbers(option: str, text: str) -> list[float]:
     return values
 
 
-def require_finite_record(record: Any, where: str = "") -> None:
+def require_finite_record(record: Any) -> None:
     """:class:`OptionError` naming the first non-finite number in a JSON-bound record."""
-    if isinstance(record, float) and not math.isfinite(record):
-        raise OptionError(f"the result {where or 'value'} is not a finite number ({record}); "
-                          "nothing written")
-    if isinstance(record, Mapping):
-        for key, value in record.items():
-            require_finite_record(value, f"{where}.{key}" if where else str(key))
-    elif isinstance(record, list | tuple):
-        for index, value in enumerate(record):
-            require_finite_record(value, f"{where}[{index}]")
+    from fitting.data import first_non_finite
+
+    where = first_non_finite(record)
+    if where is not None:
+        raise OptionError(f"the result {where} is not a finite number; nothing written")
 
 
 def _time_unit(option: str, unit: str) -> str:
@@ -312,15 +308,16 @@ def rtd_from_options(args: argparse.Namespace):
 def _check_ranges(fitted, source: str, overrides: Mapping[str, float]) -> None:
     """Refuse a Peclet number or tank count outside the range where the models are verified
     (beyond it their curves may be wrong without a sign: Pe 1e308 gives a zero response)."""
-    from axialmix.analytic.responses import _PECLET_RANGE, _TANKS_RANGE
+    from axialmix.analytic import ClosedClosedADM, TanksInSeries, unverified_parameters
 
-    ranges = {"peclet": _PECLET_RANGE, "n_tanks": _TANKS_RANGE}
+    units = {"peclet": lambda v: ClosedClosedADM(1.0, v),
+             "n_tanks": lambda v: TanksInSeries(1.0, v)}
     for name, value in zip(fitted.parameter_names, fitted.values.tolist(), strict=True):
-        if name in ranges and not ranges[name][0] <= value <= ranges[name][1]:
+        problems = unverified_parameters(units[name](value)) if name in units else []
+        if problems:
             where = f"--set {name}" if name in overrides else source
-            low, high = ranges[name]
-            raise OptionError(f"{where}: {name} = {value:g} is outside {low:g} to {high:g}, "
-                              "the range where the model's curves are verified")
+            raise OptionError(f"{where}: {name} = {value:g}: {problems[0]}; the model's curves "
+                              "are not verified there")
 
 
 def check_output(option: str, path: str | None) -> None:

@@ -176,15 +176,14 @@ def run(args: argparse.Namespace) -> int:
         return _exits.error_line(_COMMAND, error.compact())
     except ValueError as error:
         return _exits.error_line(_COMMAND, f"{args.table}: {error}")
-    from fitting.cli.funnel import OptionError, require_finite_record
+    from fitting.data import first_non_finite
 
     record = _to_dict(result, two_stage)
-    try:
-        require_finite_record({key: value for key, value in record.items()
-                               if key not in ("message",)})
-    except OptionError as error:
+    where = first_non_finite(record)
+    if where is not None:
         return _exits.error_line(_COMMAND, f"{args.table}: the {spec.model} fit with "
-                                 f"{' and '.join(args.law) or 'no law'}: {error}")
+                                 f"{' and '.join(args.law) or 'no law'}: the result {where} is "
+                                 "not a finite number; nothing written")
     print(result.report())
     for estimate in two_stage:
         print(estimate.report(result.units))
