@@ -117,10 +117,31 @@ def detect_delimiter(line: str) -> str | None:
     return None
 
 
-def _number(cell: str, decimal: str) -> float:
+#: The numeric grammar of every cell and option: an optional sign, digits with an optional
+#: decimal point, an optional exponent; or inf, infinity, nan (refused later with their own
+#: message). Python's other float spellings (underscores, "1_0") are not numbers here.
+_NUMBER = re.compile(r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf|infinity|nan)",
+                     re.IGNORECASE)
+
+
+def parse_number(cell: str, decimal: str = ".") -> float:
+    """A number in the one grammar of cells and options (:data:`_NUMBER`); ValueError else.
+
+    **Arguments:** `cell`, the text (surrounding spaces allowed); `decimal`, ``"."`` or
+    ``","`` (then a comma is the decimal point).
+
+    **Returns:** the float.
+    """
+    text = cell.strip()
     if decimal == ",":
-        cell = cell.replace(",", ".")
-    return float(cell)
+        text = text.replace(",", ".")
+    if not _NUMBER.fullmatch(text):
+        raise ValueError(f"not a number: {cell!r}")
+    return float(text)
+
+
+def _number(cell: str, decimal: str) -> float:
+    return parse_number(cell, decimal)
 
 
 def _is_number(cell: str, decimal: str) -> bool:

@@ -20,11 +20,12 @@ Format accepted:
   unit, when the header gives one (``c [g/L]``), is kept as ``Curve.value_unit``.
 * Decimal commas (``0,25`` in a file whose cells are separated by ``;``, tabs or spaces) are
   detected by default (``decimal="auto"``), or forced with ``decimal=","``.
-* Real data are not bad input. Values slightly below zero, detector noise around a
-  subtracted baseline, are kept: down to ``-NEGATIVE_FRACTION`` (5 %) of the peak. A value
-  further below zero is not noise (a wrong column, a sign error, a baseline subtracted
-  twice) and is refused with its row. Sparse, non-uniform sampling is fine, and a tail cut
-  before the curve has decayed only gives a :class:`DataWarning`.
+* Real data are not bad input. Values below zero, detector noise around a subtracted
+  baseline, are kept down to the limit the curve's own noise sets (:func:`negative_limit`:
+  6 robustly estimated noise standard deviations, at least 5 % and at most 25 % of the
+  peak). A value further below zero is not noise (a wrong column, a sign error, a baseline
+  subtracted twice) and is refused with its row. Sparse, non-uniform sampling is fine, and
+  a tail cut before the curve has decayed only gives a :class:`DataWarning`.
 
 Fitting uses the raw values (``normalise=False``) with the measurement model of
 :mod:`fitting.measurement`, whose amplitude absorbs the tracer amount: dividing the samples by
@@ -45,18 +46,27 @@ import numpy as np
 
 from axialmix._csv import Column, DataError, Table, read_table
 
-__all__ = ["NEGATIVE_FRACTION", "TIME_UNIT_SECONDS", "Curve", "DataError", "DataWarning",
-           "as_curve", "column_time_unit", "curve_columns", "input_files", "read_inlet_csv",
-           "read_many", "read_rtd_csv", "seconds_per", "validated_curve"]
+__all__ = ["MAX_NEGATIVE_FRACTION", "NEGATIVE_FRACTION", "NOISE_SIGMAS", "TIME_UNIT_SECONDS",
+           "Curve", "DataError", "DataWarning",
+           "as_curve", "column_time_unit", "curve_columns", "first_non_finite", "input_files",
+           "read_inlet_csv",
+           "negative_limit", "noise_level", "read_many", "read_rtd_csv", "seconds_per",
+           "validated_curve"]
 
 #: Fraction of the peak that the last sample may keep before the curve counts as "never
 #: returned to baseline": a tail above 5 % of the peak leaves a visible part of the area
 #: (and much of the variance) unmeasured.
 TAIL_FRACTION = 0.05
-#: Values down to this fraction of the peak below zero are detector noise around a subtracted
-#: baseline and are kept (Gaussian noise of 1 % of the peak reaches -5 % about once in three
-#: million samples, of 1.5 % once in 2,000); anything lower is refused as not a tracer signal.
+#: Values down to this fraction of the peak below zero are always kept as detector noise
+#: around a subtracted baseline; noisier curves keep values down to NOISE_SIGMAS times their
+#: own noise (see :func:`noise_level`), at most MAX_NEGATIVE_FRACTION of the peak.
 NEGATIVE_FRACTION = 0.05
+#: Noise standard deviations below zero still taken as noise: Gaussian noise reaches 6 sigma
+#: below its mean once in a billion samples.
+NOISE_SIGMAS = 6.0
+#: Whatever the noise, a value further below zero than this fraction of the peak is not noise
+#: (a wrong column, a sign error, a baseline subtracted twice) and is refused.
+MAX_NEGATIVE_FRACTION = 0.25
 
 _TIME_NAMES = {"t", "time", "times", "tempo", "zeit", "elapsed", "elapsed_time", "sample_time"}
 _VALUE_NAMES = {
@@ -79,6 +89,63 @@ SMALLEST_PEAK, LARGEST_VALUE = 1e-200, 1e200
 #: 1/span and its derivative in the time scale about 1/span², so beyond these the squared
 #: residuals and the curvature over- or underflow float64.
 TIME_SPAN_RANGE = (1e-100, 1e100)
+
+
+def first_non_finite(record, where: str = "") -> str | None:
+    """The path (``a.b[2]``) of the first non-finite float in a JSON-bound record, or None.
+
+    **Arguments:** `record`, nested dicts, lists and numbers; `where`, the path so far.
+    """
+    if isinstance(record, float) and not math.isfinite(record):
+        return where or "value"
+    if isinstance(record, dict):
+        items = ((f"{where}.{key}" if where else str(key), value)
+                 for key, value in record.items())
+    elif isinstance(record, list | tuple):
+        items = ((f"{where}[{index}]", value) for index, value in enumerate(record))
+    else:
+        return None
+    for path, value in items:
+        found = first_non_finite(value, path)
+        if found is not None:
+            return found
+    return None
+
+
+def noise_level(value: np.ndarray) -> float:
+    """A robust estimate of the additive noise's standard deviation in a sampled curve.
+
+    From the second differences ``y[i+1] - 2 y[i] + y[i-1]``, which remove a smooth signal
+    (its curvature is small between close samples) and leave ``6 sigma²`` of white noise: the
+    median absolute deviation of them, times 1.4826 (normal consistency), over ``sqrt(6)``.
+    A few outliers do not move the median. Sparse sampling of a sharp peak over-states the
+    noise (the signal's curvature counts as noise), which only widens the negative-value limit
+    up to its cap.
+
+    **Arguments:** `value`, the samples ``(n,)`` (any unit).
+
+    **Returns:** sigma in the unit of `value` (0 for fewer than 5 samples).
+    """
+    value = np.asarray(value, dtype=float)
+    if value.size < 5:
+        return 0.0
+    second = np.diff(value, 2)
+    return float(1.4826 * np.median(np.abs(second - np.median(second))) / np.sqrt(6.0))
+
+
+def negative_limit(value: np.ndarray) -> tuple[float, float]:
+    """The most negative value accepted as noise in a curve, and the noise it follows.
+
+    ``-max(NEGATIVE_FRACTION × peak, min(NOISE_SIGMAS × sigma, MAX_NEGATIVE_FRACTION × peak))``
+    with sigma from :func:`noise_level`.
+
+    **Returns:** ``(limit, sigma)`` in the unit of `value` (limit <= 0).
+    """
+    value = np.asarray(value, dtype=float)
+    peak = max(float(np.max(value)) if value.size else 0.0, 0.0)
+    sigma = noise_level(value)
+    depth = max(NEGATIVE_FRACTION * peak, min(NOISE_SIGMAS * sigma, MAX_NEGATIVE_FRACTION * peak))
+    return -depth, sigma
 
 
 def seconds_per(time_unit: str) -> float:
@@ -292,6 +359,11 @@ def column_time_unit(table: Table, column: Column) -> str:
     for a unit that is not a time unit.
     """
     if column.unit is None:
+        # "time_days", "t_us": a time name with a suffix that is not a known unit.
+        stem, underscore, suffix = column.name.rpartition("_")
+        if underscore and stem in _TIME_NAMES and suffix:
+            raise table.error(f"unknown time unit {suffix!r} in {column.label!r} "
+                              f"(known: s, ms, min, h)")
         return "s"
     if column.unit.lower() not in _TIME_UNITS:
         raise table.error(f"unknown time unit {column.unit!r} in {column.label!r} "
@@ -338,15 +410,19 @@ def validated_curve(
     if bad is not None:
         problems.append((bad, f"negative time {time[bad]:g}"))
     peak_value = float(np.max(value)) if value.size else 0.0
-    bad = _first(value < -NEGATIVE_FRACTION * max(peak_value, 0.0))
+    limit, sigma = negative_limit(value)
+    bad = _first(value < limit)
     if bad is not None:
         if peak_value > 0:
             depth = f"{100 * -value[bad] / peak_value:.3g} % of the peak {peak_value:.4g}"
+            accepted = (f"noise around a baseline is accepted down to {limit:.3g} "
+                        f"({100 * -limit / peak_value:.3g} % of the peak; the curve's noise "
+                        f"is {sigma:.3g})")
         else:
             depth = "and no value above zero"
-        problems.append((bad, f"negative value {value[bad]:g} ({depth}; noise around a "
-                         f"baseline is accepted down to -{100 * NEGATIVE_FRACTION:g} % of the "
-                         "peak)"))
+            accepted = "no tracer signal above the baseline"
+        label = f"curve {name!r}: " if name is not None and name != path.stem else ""
+        problems.append((bad, f"{label}negative value {value[bad]:g} ({depth}; {accepted})"))
     bad = _first(np.diff(time) <= 0)
     if bad is not None:
         kind = "repeated" if time[bad + 1] == time[bad] else "not increasing"
@@ -360,8 +436,12 @@ def validated_curve(
         index, problem = min(problems)
         raise DataError(path, problem, int(rows[index]))
     if len(time) < min_points:
-        raise DataError(path, f"too few points: {len(time)} data rows, at least {min_points} "
-                        "needed")
+        label = f"curve {name!r}: " if name is not None and name != path.stem else ""
+        where = f" (row {int(rows[0])})" if len(rows) == 1 else (
+            f" (rows {int(rows[0])} to {int(rows[-1])})" if len(rows) else "")
+        raise DataError(path, f"too few points: {label}{len(time)} data "
+                        f"row{'s' if len(time) != 1 else ''}, at least {min_points} "
+                        f"needed{where}")
     span = float(time[-1] - time[0])
     if not TIME_SPAN_RANGE[0] <= span <= TIME_SPAN_RANGE[1]:
         raise DataError(path, f"the times span {span:.3g} {time_unit}, outside "

@@ -235,14 +235,26 @@ def make_layout(model_name: str, parameter_names: Sequence[str], params: Paramet
     - `parameter_names`: the names the model reads, in order.
     - `params`: a setting for each of them (and possibly extra parameters used in ties).
 
-    **Returns:** a :class:`Layout`; a one-line ``ValueError`` for a missing parameter, an
-    unknown name in a tie, a cycle of ties, or nothing left to fit.
+    **Returns:** a :class:`Layout`; a one-line ``ValueError`` for a missing parameter, a
+    name the model does not read that no tie uses, an unknown name in a tie, a cycle of
+    ties, or nothing left to fit.
     """
     parameter_names = tuple(parameter_names)
     names = parameter_names + tuple(n for n in params if n not in parameter_names)
     missing = [n for n in parameter_names if n not in params]
     if missing:
         raise ValueError(f"no value for parameter(s) {missing} of model {model_name!r}")
+    # A name the model does not read is kept only when a tie uses it (an extra parameter
+    # that other ones are expressed in); otherwise it is a misspelling, refused.
+    used = set()
+    for n in params:
+        if params[n].expr is not None:
+            used |= expression_names(params[n].expr)
+    unknown = [n for n in params if n not in parameter_names and n not in used
+               and params[n].expr is None]
+    if unknown:
+        raise ValueError(f"unknown parameter(s) {unknown} for model {model_name!r} "
+                         f"(its parameters: {', '.join(parameter_names)})")
     free, kinds, lower, upper, scale = [], [], [], [], []
     pending = {}
     for name in names:

@@ -102,7 +102,9 @@ def test_runs_that_exceed_memory_are_refused_before_they_start(
     estimate = float(err.split("needs about ")[1].split(" GB")[0])
     assert estimate > 16
     assert list(tmp_path.iterdir()) == []
-    assert elapsed < 10  # refused before allocating (the estimate costs no memory)
+    # Refused before allocating: the estimate costs no memory and no run (a generous bound,
+    # so that load cannot break it; the run itself would take minutes and 16 GB).
+    assert elapsed < 120
 
 
 def test_memory_estimate_counts_the_records_of_steps_and_the_identity_slots():
@@ -166,7 +168,10 @@ def _interrupt_once(folder, delay: float) -> dict:
                "files": names, "err": err.decode().strip()}
     assert not [n for n in names if n.startswith(".")], f"temporary file left: {outcome}"
     assert process.returncode in (130, 0), outcome  # 0 only when it finished first
-    assert took < 2.0, outcome
+    # The exit status and the files say whether the signal was obeyed; the time to exit
+    # (well under 2 s on an idle machine, printed by the opt-in studies) is bounded only
+    # generously here, so that a loaded machine cannot fail the test.
+    assert took < 30.0, outcome
     if json_path.exists():  # a written file is complete and says how far the run got
         data = json.loads(json_path.read_text())
         # Interrupted runs say so; a Ctrl-C after the last step keeps the complete results.

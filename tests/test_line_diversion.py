@@ -9,6 +9,7 @@ from scipy.optimize import brentq, curve_fit
 
 from axialmix.line import (
     Disturbance,
+    DiversionRefused,
     FlowSchedule,
     Line,
     Unit,
@@ -60,8 +61,14 @@ def test_window_cases_without_return_without_excursion_and_with_two_excursions()
     small = diversion_window(unit, Disturbance.square(0.04, 30.0, 5.0), TIMES, **LIMITS)
     assert not bool(small.diverts)
     assert np.isnan(float(small.start)) and float(small.diverted_amount) == 0.0
-    lasting = diversion_window(unit, Disturbance.square(0.2, 1e6, 5.0), TIMES, **LIMITS)
+    # A lasting step leaves the content outside for good: the window has no end.
+    lasting = diversion_window(unit, Disturbance.step(0.2, 5.0), TIMES, **LIMITS)
     assert float(lasting.stop) == np.inf and float(lasting.diverted_amount) == np.inf
+    # A square ending after the scan: the scan is continued until the outlet settles, so
+    # the window is the exact one, not cut at the last given time.
+    late = diversion_window(unit, Disturbance.square(0.2, 200.0, 5.0), TIMES, **LIMITS)
+    assert float(late.stop) == pytest.approx(_tank_window(0.2, 200.0, 5.0)[1], rel=1e-12)
+    assert float(late.times[-1]) > 205.0
     twice = Disturbance.square(0.2, 10.0, 5.0) + Disturbance.square(0.2, 10.0, 60.0)
     window = diversion_window(unit, twice, TIMES, **LIMITS)
 
@@ -248,3 +255,29 @@ def test_conservative_window_covers_the_true_window_over_200_simulated_fits():
         f"true window {float(reference.stop - reference.start):.3f}"
     )
     assert counts["region"] / experiments >= 0.9
+
+
+def test_conservative_window_is_monotone_in_the_covariance():
+    # Property: a larger covariance (the same one scaled by k > 1, the same seed) never gives
+    # a narrower conservative window; once the samples reach parameters where the model has
+    # no finite prediction the window is refused, never made of the samples that worked.
+    disturbance = Disturbance.square(0.2, 20.0, 10.0)
+    times = np.linspace(0.0, 300.0, 301)
+    rng = np.random.default_rng(11)
+    for case in range(2):
+        root = rng.normal(size=(2, 2)) * [0.02, 0.05]
+        covariance = root @ root.T + np.diag([1e-4, 1e-4])  # of log tau, log Pe
+        values = [rng.uniform(40.0, 80.0), rng.uniform(10.0, 60.0)]
+        previous = None
+        for k in (1.0, 3.0, 100.0, 1e4, 1e8):
+            try:
+                window = conservative_diversion_window(
+                    _closed_closed, values, k * covariance, disturbance, times,
+                    samples=64, seed=case, scale="log", **LIMITS)
+            except DiversionRefused as refused:
+                assert refused.failed > 0.01 * 64
+                break
+            start, stop = float(window.start), float(window.stop)
+            if previous is not None:
+                assert start <= previous[0] and stop >= previous[1], (case, k, previous)
+            previous = (start, stop)

@@ -30,7 +30,11 @@
 
 from axialmix.line._disturbance import Disturbance, OutletResponse, outlet_response
 from axialmix.line._diversion import (
+    MAX_EVALUATIONS,
+    MAX_FAILED_SHARE,
     ConservativeDiversion,
+    DiversionRefused,
+    DiversionTooLarge,
     DiversionWindow,
     conservative_diversion_window,
     diversion_window,
@@ -77,7 +81,11 @@ __all__ = [
     "TANKS",
     "TANKS_EXCHANGE",
     "UNIT_BUILDERS",
+    "MAX_EVALUATIONS",
+    "MAX_FAILED_SHARE",
     "ConservativeDiversion",
+    "DiversionRefused",
+    "DiversionTooLarge",
     "Disturbance",
     "DiversionWindow",
     "FittedRTD",

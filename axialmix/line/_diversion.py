@@ -22,6 +22,8 @@ parameter distribution. Two conservative windows are offered:
 
 from __future__ import annotations
 
+import functools
+import os
 from collections.abc import Callable
 
 import equinox as eqx
@@ -38,14 +40,72 @@ from axialmix.line._throughput import FlowSchedule
 from axialmix.line._unit import Unit
 
 __all__ = [
+    "MAX_EVALUATIONS",
+    "MAX_FAILED_SHARE",
+    "SETTLED",
     "ConservativeDiversion",
+    "DiversionRefused",
+    "DiversionTooLarge",
     "DiversionWindow",
     "conservative_diversion_window",
     "diversion_window",
+    "memory_budget",
     "sample_units",
 ]
 
 _ROOT_STEPS = 24
+#: Output times evaluated together (the scan of any number of times runs in chunks of these).
+_CHUNK = 4096
+#: Bytes held per scan time (times, outlet, excess and masks as float64, with room).
+_BYTES_PER_TIME = 64
+#: Largest number of model evaluations (output times × disturbance events, over the scan and
+#: all samples) a diversion may ask for: about ten minutes at a microsecond each.
+MAX_EVALUATIONS = 5e8
+#: Largest share of covariance samples allowed to fail (no finite prediction, or an outlet
+#: that has not settled by the end of the longest scan) before the conservative window is
+#: refused: above it the window would be made of the samples that happened to work.
+MAX_FAILED_SHARE = 0.01
+#: The disturbance's effect counts as settled at the end of the scan when the share still to
+#: come, ``1 - F(end - last event)``, is at most this.
+SETTLED = 1e-4
+#: Doublings of the scan's span allowed to reach a settled outlet.
+_EXTENSIONS = 6
+#: Samples evaluated together in a batch unless memory asks for fewer.
+_BATCH = 64
+#: Scan times of one covariance sample: every k-th time of the scan, at least this many.
+SAMPLE_SCAN_POINTS = 256
+
+
+def memory_budget() -> int:
+    """Bytes a diversion may hold at once: a quarter of the machine's memory, at most 2 GiB."""
+    try:
+        physical = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        physical = 8 * 2**30
+    return int(min(2 * 2**30, physical // 4))
+
+
+class DiversionTooLarge(ValueError):
+    """A diversion whose scan or samples would exceed the memory or evaluation bounds.
+
+    `option` is ``"points"`` or ``"samples"``: what to reduce."""
+
+    def __init__(self, option: str, message: str):
+        super().__init__(message)
+        self.option = option
+
+
+class DiversionRefused(ValueError):
+    """A conservative window refused because too many covariance samples failed.
+
+    **Attributes:** `failed` (samples without a finite prediction or a settled outlet),
+    `nonfinite`, `unsettled`, `samples` (drawn)."""
+
+    def __init__(self, message: str, failed: int, nonfinite: int, unsettled: int,
+                 samples: int):
+        super().__init__(message)
+        self.failed, self.nonfinite, self.unsettled, self.samples = (
+            failed, nonfinite, unsettled, samples)
 
 
 class DiversionWindow(eqx.Module):
@@ -107,13 +167,17 @@ def _amount(flow, start: Array, stop: Array) -> Array:
 
 
 def _crossing(excess, low: Array, high: Array) -> Array:
-    """The sign change of `excess` in [low, high] (signs differ at the ends), to round-off.
+    """The sign changes of `excess` in the brackets [low, high] (1-D arrays of brackets whose
+    ends differ in sign), to round-off.
 
     Illinois' regula falsi: the bracket is kept, and an end that stays twice has its value
     halved, so convergence is superlinear (about 1e-15 of the bracket after a dozen steps
     for a smooth excess; a fixed number of steps keeps it traceable and vmappable).
     """
-    f_low, f_high = excess(low), excess(high)
+    # One evaluation site for both ends (and, in the loop, one for the guesses): the model's
+    # program appears twice in the compiled code, not four times.
+    ends = excess(jnp.concatenate([low, high]))
+    f_low, f_high = ends[: low.shape[0]], ends[low.shape[0]:]
 
     def body(_, state):
         a, b, fa, fb, side = state
@@ -129,34 +193,48 @@ def _crossing(excess, low: Array, high: Array) -> Array:
         return new_a, new_b, new_fa, new_fb, jnp.where(same_as_a, 1, -1)
 
     a, b, fa, fb, _ = jax.lax.fori_loop(
-        0, _ROOT_STEPS, body, (low, high, f_low, f_high, jnp.asarray(0))
+        0, _ROOT_STEPS, body, (low, high, f_low, f_high, jnp.zeros(low.shape, int))
     )
     return jnp.where(jnp.abs(fa) < jnp.abs(fb), a, b)
 
 
+def _excess(content, lower, upper):
+    return jnp.maximum(content - upper, lower - content)
+
+
+def _outlet(evaluator, disturbance, times):
+    """The outlet deviation on 1-D `times`, in chunks of :data:`_CHUNK` times (bounded memory
+    for any number of times; one program)."""
+    n = times.shape[0]
+    if n <= _CHUNK:
+        return response_at(evaluator, disturbance, times)
+    chunks = -(-n // _CHUNK)
+    padded = jnp.concatenate([times, jnp.full(chunks * _CHUNK - n, times[-1])])
+    values = jax.lax.map(lambda part: response_at(evaluator, disturbance, part),
+                         padded.reshape(chunks, _CHUNK))
+    return values.reshape(-1)[:n]
+
+
 def _window(evaluator, disturbance, times, target, lower, upper, flow):
     """Start, stop, amount, diverts and the outlet content on the times (traceable)."""
-    outlet = target + response_at(evaluator, disturbance, times)
+    outlet = target + _outlet(evaluator, disturbance, times)
 
     def excess_at(t):
-        content = target + response_at(evaluator, disturbance, t)
-        return jnp.maximum(content - upper, lower - content)
+        return _excess(target + response_at(evaluator, disturbance, t), lower, upper)
 
-    out = jnp.maximum(outlet - upper, lower - outlet) > 0
+    out = _excess(outlet, lower, upper) > 0
     diverts = jnp.any(out)
     last_index = times.shape[0] - 1
     first = jnp.argmax(out)
     last = last_index - jnp.argmax(out[::-1])
-    start = jnp.where(
-        first == 0,
-        times[0],
-        _crossing(excess_at, times[jnp.maximum(first - 1, 0)], times[first]),
+    # The exit and the return, located together (vectorised over the two brackets).
+    roots = _crossing(
+        excess_at,
+        jnp.stack([times[jnp.maximum(first - 1, 0)], times[last]]),
+        jnp.stack([times[first], times[jnp.minimum(last + 1, last_index)]]),
     )
-    stop = jnp.where(
-        last == last_index,
-        jnp.inf,
-        _crossing(excess_at, times[last], times[jnp.minimum(last + 1, last_index)]),
-    )
+    start = jnp.where(first == 0, times[0], roots[0])
+    stop = jnp.where(last == last_index, jnp.inf, roots[1])
     amount = jnp.where(stop == jnp.inf, jnp.inf, _amount(flow, start, jnp.where(
         stop == jnp.inf, start, stop)))
     start = jnp.where(diverts, start, jnp.nan)
@@ -165,9 +243,71 @@ def _window(evaluator, disturbance, times, target, lower, upper, flow):
     return start, stop, amount, diverts, outlet
 
 
+def _unsettled(evaluator, disturbance, end):
+    """``1 - F(end - last event)``: the share of the disturbance's effect still to come at
+    the end of the scan (0 for a disturbance without events)."""
+    events = disturbance.event_times()
+    if events.shape[0] == 0:
+        return jnp.asarray(0.0)
+    lag = end - jnp.max(events)
+    return jnp.where(lag > 0, 1.0 - evaluator.cumulative(jnp.maximum(lag, 0.0)), 1.0)
+
+
 @eqx.filter_jit
 def _window_jit(evaluator, disturbance, times, target, lower, upper, flow):
-    return _window(evaluator, disturbance, times, target, lower, upper, flow)
+    window = _window(evaluator, disturbance, times, target, lower, upper, flow)
+    return (*window, _unsettled(evaluator, disturbance, times[-1]))
+
+
+def _candidate_ends(times: np.ndarray) -> np.ndarray:
+    """The ends of the scan doubled 0 to :data:`_EXTENSIONS` times."""
+    span = float(times[-1] - times[0])
+    return times[0] + span * 2.0 ** np.arange(_EXTENSIONS + 1)
+
+
+@eqx.filter_jit
+def _settle_jit(evaluator, disturbance, ends):
+    return jax.vmap(lambda end: _unsettled(evaluator, disturbance, end))(ends)
+
+
+def _sample_settle(unit_factory, parameters, disturbance, ends, horizon, batch):
+    """``1 - F`` at each candidate end for each sample ``(samples, ends)``, in batches."""
+
+    def one(vector):
+        evaluator = as_evaluator(unit_factory(vector), horizon)
+        return jax.vmap(lambda end: _unsettled(evaluator, disturbance, end))(ends)
+
+    return jax.lax.map(one, parameters, batch_size=batch)
+
+
+_sample_settle_jit = eqx.filter_jit(_sample_settle)
+
+
+def _extended(times: np.ndarray, factor: float = 2.0) -> np.ndarray:
+    """`times` continued at their last spacing to `factor` times their span."""
+    step = float(times[-1] - times[-2])
+    span = float(times[-1] - times[0])
+    extra = max(1, int(np.ceil((factor - 1.0) * span / step)))
+    return np.concatenate([times, times[-1] + step * np.arange(1, extra + 1)])
+
+
+def _scan_budget(points: int, lags: int, what: str) -> None:
+    """Refuse a scan whose arrays or model evaluations exceed the stated bounds."""
+    memory = points * _BYTES_PER_TIME
+    if memory > memory_budget():
+        raise DiversionTooLarge(
+            "points", f"{what} of {points:,} times needs about {memory / 2**30:.3g} GiB, "
+            f"more than the {memory_budget() / 2**30:.3g} GiB allowed")
+    if points * lags > MAX_EVALUATIONS:
+        raise DiversionTooLarge(
+            "points", f"{what} of {points:,} times needs about {points * lags:.3g} model "
+            f"evaluations, more than the {MAX_EVALUATIONS:.3g} allowed")
+
+
+def _lags(disturbance: Disturbance) -> int:
+    """Model evaluations per output time of a disturbance's response."""
+    return max(1, int(disturbance.step_times.shape[0] + disturbance.pulse_times.shape[0]
+                      + sum(trace[0].shape[0] for trace in disturbance.traces)))
 
 
 def _check(rtd, disturbance, times, target, lower, upper, flow):
@@ -205,6 +345,7 @@ def diversion_window(
     flow: ArrayLike | FlowSchedule = 1.0,
     content_unit: str = "",
     amount_unit: str = "",
+    extend: bool = True,
 ) -> DiversionWindow:
     """When to start and stop diverting after a disturbance, and how much material that is.
 
@@ -224,20 +365,44 @@ def diversion_window(
     - `flow`: the outlet flow, a number (amount per time unit) or a
       :class:`~axialmix.line.FlowSchedule`.
     - `content_unit`, `amount_unit`: units carried to the result.
+    - `extend`: continue the scan past ``times[-1]`` (at its last spacing, doubling its span,
+      at most six times) until the disturbance's effect has settled: ``1 - F`` at the lag from
+      its last event to the end of the scan at most :data:`SETTLED`. Then the outlet content
+      no longer changes, so a window open at the end stays open (``stop = inf``) and none
+      starts later; a window is never cut by the end of `times`. A ValueError says when the
+      outlet has not settled after the doublings.
 
     **Returns:**
 
-    A :class:`DiversionWindow`.
+    A :class:`DiversionWindow` (its `times` are the scan's, extended or not).
+
+    **Raises:** :class:`DiversionTooLarge` for a scan of more than
+    :data:`MAX_EVALUATIONS` model evaluations or more memory than :func:`memory_budget`.
     """
     _check(rtd, disturbance, times, target, lower, upper, flow)
-    times = jnp.asarray(times, float)
-    evaluator = as_evaluator(rtd, lag_horizon(disturbance, times))
+    times = np.asarray(times, float)
     target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
-    start, stop, amount, diverts, outlet = _window_jit(
-        evaluator, disturbance, times, target, lower, upper, flow
+    lags = _lags(disturbance)
+    if extend:
+        # The end the scan needs, found first (one small program over the candidate ends),
+        # so that the window's program is compiled once, for the scan it runs on.
+        ends = _candidate_ends(times)
+        evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(ends)))
+        unsettled = np.asarray(_settle_jit(evaluator, disturbance, jnp.asarray(ends)))
+        settled = np.flatnonzero(unsettled <= SETTLED)
+        if settled.size == 0:
+            raise ValueError(
+                f"the outlet has not settled by {ends[-1]:g} {rtd.time_unit} "
+                f"({float(unsettled[-1]):.2g} of the disturbance's effect still to come after "
+                f"{_EXTENSIONS} doublings of the scan); give later times")
+        times = _extended(times, 2.0 ** int(settled[0])) if settled[0] else times
+    _scan_budget(times.shape[0], lags, "a scan")
+    evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(times)))
+    start, stop, amount, diverts, outlet, _ = _window_jit(
+        evaluator, disturbance, jnp.asarray(times), target, lower, upper, flow
     )
     return DiversionWindow(
-        start, stop, amount, diverts, times, outlet, lower, upper,
+        start, stop, amount, diverts, jnp.asarray(times), outlet, lower, upper,
         rtd.time_unit, content_unit, amount_unit,
     )
 
@@ -268,16 +433,23 @@ def _draw(values, covariance, samples, seed, scale, region):
     if not isinstance(samples, int) or samples < 1:
         raise ValueError(f"samples must be a positive integer, got {samples!r}.")
     centre, root = _distribution(values, covariance, scale)
+    radius = None
+    if region is not None:
+        from scipy.special import gammaincinv  # chi²_p quantile, without scipy.stats' import
+
+        radius = float(np.sqrt(2.0 * gammaincinv(centre.shape[0] / 2.0, region)))
+    return _draw_jit(centre, root, samples, seed, scale, radius)
+
+
+@functools.partial(jax.jit, static_argnums=(2, 4, 5))
+def _draw_jit(centre, root, samples, seed, scale, radius):
     p = centre.shape[0]
     key_direction, key_radius = jax.random.split(jax.random.PRNGKey(seed))
     normal = jax.random.normal(key_direction, (samples, p))
-    if region is not None:
+    if radius is not None:
         # Half of the points on the surface of the region (radius sqrt(chi²_p(region)) in
         # whitened coordinates, where the extremes of a monotone map lie), half uniformly
         # inside it, and the centre.
-        from scipy.stats import chi2
-
-        radius = float(np.sqrt(chi2.ppf(region, p)))
         directions = normal / jnp.linalg.norm(normal, axis=1, keepdims=True)
         uniform = jax.random.uniform(key_radius, (samples,))
         inside = jnp.arange(samples) % 2 == 1
@@ -338,7 +510,11 @@ class ConservativeDiversion(eqx.Module):
     - `sample_starts`, `sample_stops`: their windows (``+inf``/``-inf`` for vectors that do
       not divert, NaN for vectors whose prediction is not finite).
     - `diverting_fraction`: share of the valid samples that divert.
-    - `valid_samples`: samples with a finite prediction (the others are left out).
+    - `valid_samples`: samples with a finite prediction whose outlet settled within the scan.
+    - `failed_samples`: the others (at most :data:`MAX_FAILED_SHARE` of the samples, or the
+      window is refused), left out of the window and counted here.
+    - `scan_end`: the end of the scan of the samples (time unit; past the given times when
+      the outlet had not settled there).
     - `time_unit`, `amount_unit`: units.
     """
 
@@ -353,6 +529,8 @@ class ConservativeDiversion(eqx.Module):
     sample_stops: Array
     diverting_fraction: Array
     valid_samples: int = eqx.field(static=True)
+    failed_samples: int = eqx.field(static=True, default=0)
+    scan_end: float = eqx.field(static=True, default=float("nan"))
     time_unit: str = eqx.field(static=True, default="s")
     amount_unit: str = eqx.field(static=True, default="")
 
@@ -369,23 +547,86 @@ class ConservativeDiversion(eqx.Module):
             "method": self.method,
             "samples": int(self.sample_parameters.shape[0]),
             "valid_samples": self.valid_samples,
+            "failed_samples": self.failed_samples,
+            "scan_end": _number(self.scan_end),
             "diverting_fraction": float(self.diverting_fraction),
             "time_unit": self.time_unit,
             "amount_unit": self.amount_unit,
         }
 
 
-@eqx.filter_jit
 def _sample_windows(unit_factory, parameters, disturbance, times, target, lower, upper, flow,
-                    horizon):
+                    horizon, batch):
+    """Window ends, diverts, finite and unsettled share of each sample, in batches of `batch`
+    vectors (one program: ``lax.map`` over batches of a vmapped window)."""
+
     def one(vector):
         evaluator = as_evaluator(unit_factory(vector), horizon)
         start, stop, _, diverts, outlet = _window(
             evaluator, disturbance, times, target, lower, upper, flow
         )
-        return start, stop, diverts, jnp.all(jnp.isfinite(outlet))
+        unsettled = _unsettled(evaluator, disturbance, times[-1])
+        return start, stop, diverts, jnp.all(jnp.isfinite(outlet)), unsettled
 
-    return jax.vmap(one)(parameters)
+    return jax.lax.map(one, parameters, batch_size=batch)
+
+
+_PROGRAMS: dict = {}
+
+
+def _program(args: tuple, batch: int):
+    """The compiled sample program for `args` and `batch` with its temporary memory (bytes),
+    compiled once per structure and shapes."""
+    leaves, structure = jax.tree_util.tree_flatten(args)
+    key = (structure, batch, tuple(
+        (np.shape(leaf), str(np.asarray(leaf).dtype)) if eqx.is_array(leaf) else
+        ("static", leaf) for leaf in leaves))
+    if key not in _PROGRAMS:
+        compiled = eqx.filter_jit(_sample_windows).lower(*args, batch).compile()
+        analysis = compiled.compiled.memory_analysis()
+        temp = int(getattr(analysis, "temp_size_in_bytes", 0) or 0) if analysis else 0
+        if len(_PROGRAMS) > 32:
+            _PROGRAMS.clear()
+        _PROGRAMS[key] = (compiled, temp)
+    return _PROGRAMS[key]
+
+
+def _sample_step(given: int) -> int:
+    """k of the samples' scan: every k-th time of a scan of `given` times keeps at least
+    :data:`SAMPLE_SCAN_POINTS` of them (the same k over an extended scan: its spacing stays)."""
+    return max(1, (given - 1) // (SAMPLE_SCAN_POINTS - 1))
+
+
+def _sample_scan(times: np.ndarray, step: int) -> np.ndarray:
+    """Every `step`-th time of the scan, and its last."""
+    picked = times[::step]
+    return picked if picked[-1] == times[-1] else np.append(picked, times[-1])
+
+
+def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lower, upper,
+                      flow, horizon):
+    """Run the sample program in batches sized to :func:`memory_budget`."""
+    count = parameters.shape[0]
+    batch = min(_BATCH, count)
+    budget = memory_budget()
+    original = parameters
+    while True:
+        # Whole batches only (a remainder would be a second copy of the program): the last
+        # batch is filled with copies of the first vector, whose results are dropped.
+        padding = -count % batch
+        parameters = jnp.concatenate([original, jnp.repeat(original[:1], padding, axis=0)])
+        args = (unit_factory, parameters, disturbance, jnp.asarray(times), target, lower,
+                upper, flow, horizon)
+        compiled, temp = _program(args, batch)
+        if temp <= budget or batch == 1:
+            break
+        batch = max(1, int(batch * budget / temp))
+    if temp > budget:
+        raise DiversionTooLarge(
+            "points", f"one covariance sample over {times.shape[0]:,} scan times needs about "
+            f"{temp / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB allowed")
+    results = compiled(*args, batch)
+    return tuple(result[:count] for result in results)
 
 
 def conservative_diversion_window(
@@ -406,6 +647,7 @@ def conservative_diversion_window(
     scale: str = "linear",
     content_unit: str = "",
     amount_unit: str = "",
+    max_failed_share: float = MAX_FAILED_SHARE,
 ) -> ConservativeDiversion:
     """A diversion window that covers the true one with a stated probability, by sampling.
 
@@ -434,33 +676,90 @@ def conservative_diversion_window(
     - `seed`: random seed.
     - `scale`: ``"linear"`` or ``"log"`` (see :func:`sample_units`).
     - `content_unit`, `amount_unit`: units of the content and of the diverted amount.
+    - `max_failed_share`: largest share of samples allowed to fail (no finite prediction, or
+      an outlet not settled at the end of the longest scan); above it the window is refused.
+
+    The nominal window's scan is extended until its outlet has settled (see
+    :func:`diversion_window`); the samples are scanned on every k-th of its times (k such that
+    the given `times` keep at least :data:`SAMPLE_SCAN_POINTS`; their crossings are then
+    located exactly on the model), and the scan is extended further, at the same spacing,
+    while some sample has not settled. Samples run in batches
+    whose memory, measured from the compiled program before any work, stays within
+    :func:`memory_budget`.
 
     **Returns:**
 
-    A :class:`ConservativeDiversion`.
+    A :class:`ConservativeDiversion`, with the failed samples counted.
+
+    **Raises:** :class:`DiversionRefused` when more than `max_failed_share` of the samples
+    fail (the window is never made of the samples that happened to work);
+    :class:`DiversionTooLarge` when the samples and scan would exceed
+    :data:`MAX_EVALUATIONS` model evaluations or the memory budget (before any work).
     """
     if not 0.0 < coverage < 1.0:
         raise ValueError(f"coverage must lie between 0 and 1, got {coverage!r}.")
     if method not in ("region", "quantile"):
         raise ValueError(f"method must be 'region' or 'quantile', got {method!r}.")
+    if not 0.0 <= max_failed_share < 1.0:
+        raise ValueError(f"max_failed_share must lie in [0, 1), got {max_failed_share!r}.")
     nominal = diversion_window(
         unit_factory(jnp.atleast_1d(jnp.asarray(values, float))), disturbance, times,
         target=target, lower=lower, upper=upper, flow=flow, content_unit=content_unit,
         amount_unit=amount_unit,
     )
+    lags = _lags(disturbance)
+    step = _sample_step(np.shape(times)[0])
+    scan = _sample_scan(np.asarray(nominal.times), step)
+    if isinstance(samples, int) and samples * scan.shape[0] * lags > MAX_EVALUATIONS:
+        raise DiversionTooLarge(
+            "samples", f"{samples:,} samples over {scan.shape[0]:,} scan times need about "
+            f"{samples * scan.shape[0] * lags:.3g} model evaluations, more than the "
+            f"{MAX_EVALUATIONS:.3g} allowed")
     parameters = _draw(values, covariance, samples, seed, scale,
                        coverage if method == "region" else None)
-    times = jnp.asarray(times, float)
     target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
-    starts, stops, diverts, finite = _sample_windows(
-        unit_factory, parameters, disturbance, times, target, lower, upper, flow,
-        float(lag_horizon(disturbance, times)),  # static: a measured curve's grid needs it
+    full = np.asarray(nominal.times)
+    horizon_args = jnp.asarray(_candidate_ends(full))
+    # The end each sample needs, first (a small program: F at the candidate ends), then the
+    # windows of all samples on one scan to the latest end any of them needs.
+    batch = min(_BATCH, parameters.shape[0])
+    padding = -parameters.shape[0] % batch
+    padded = jnp.concatenate([parameters, jnp.repeat(parameters[:1], padding, axis=0)])
+    settle = np.asarray(_sample_settle_jit(
+        unit_factory, padded, disturbance, horizon_args,
+        float(lag_horizon(disturbance, horizon_args)), batch))[: parameters.shape[0]]
+    reaches = settle <= SETTLED
+    needed = np.where(reaches.any(axis=1), np.argmax(reaches, axis=1), _EXTENSIONS)
+    doublings = int(needed[np.isfinite(settle).all(axis=1)].max(initial=0))
+    while doublings and samples * _sample_scan(
+            _extended(full, 2.0 ** doublings), step).shape[0] * lags > MAX_EVALUATIONS:
+        doublings -= 1  # the latest samples then count as not settled
+    if doublings:
+        scan = _sample_scan(_extended(full, 2.0 ** doublings), step)
+    starts, stops, diverts, finite, unsettled = _evaluate_samples(
+        unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
+        float(lag_horizon(disturbance, jnp.asarray(scan))),  # static: a measured grid
     )
-    starts = jnp.where(finite, jnp.where(diverts, starts, jnp.inf), jnp.nan)
-    stops = jnp.where(finite, jnp.where(diverts, stops, -jnp.inf), jnp.nan)
-    valid = np.asarray(finite)
-    if not valid.any():
-        raise ValueError("no sampled parameter vector gives a finite prediction.")
+    finite, unsettled = np.asarray(finite), np.asarray(unsettled)
+    late = finite & ~(unsettled <= SETTLED)
+    nonfinite = int((~finite).sum())
+    unsettled_count = int(late.sum())
+    failed = nonfinite + unsettled_count
+    if failed > max_failed_share * samples:
+        reasons = []
+        if nonfinite:
+            reasons.append(f"{nonfinite} give no finite outlet prediction")
+        if unsettled_count:
+            reasons.append(f"{unsettled_count} have not settled by {scan[-1]:g} "
+                           f"{nominal.time_unit}")
+        raise DiversionRefused(
+            f"{failed} of {samples} samples ({failed / samples:.1%}, more than the "
+            f"{max_failed_share:.0%} allowed) fail: {' and '.join(reasons)}; the parameter "
+            "distribution reaches values where the model has no usable prediction, so no "
+            "conservative window is given", failed, nonfinite, unsettled_count, samples)
+    valid = finite & ~late
+    starts = jnp.where(valid, jnp.where(diverts, starts, jnp.inf), jnp.nan)
+    stops = jnp.where(valid, jnp.where(diverts, stops, -jnp.inf), jnp.nan)
     kept_starts = np.asarray(starts)[valid]
     kept_stops = np.asarray(stops)[valid]
     if method == "region":
@@ -488,6 +787,8 @@ def conservative_diversion_window(
         stops,
         jnp.asarray(np.asarray(diverts)[valid].mean()),
         int(valid.sum()),
+        failed,
+        float(scan[-1]),
         nominal.time_unit,
         amount_unit,
     )

@@ -65,6 +65,30 @@ def _logarithm(table: dict[str, list[str]], response: str) -> str:
     return name
 
 
+#: Largest and smallest non-zero magnitude of a response: beyond, its sums of squares
+#: over- or underflow float64.
+_RESPONSE_RANGE = (1e-150, 1e150)
+
+
+def _check_response(table: dict[str, list[str]], response: str) -> None:
+    """A one-line ``ValueError`` naming the run whose response's square would over- or
+    underflow (the other cell problems are the analysis's to report)."""
+    import math
+
+    from axialmix._csv import parse_number
+
+    low, high = _RESPONSE_RANGE
+    for number, cell in enumerate(table.get(response, []), start=1):
+        try:
+            value = parse_number(cell)
+        except ValueError:
+            continue
+        if math.isfinite(value) and value != 0 and not low <= abs(value) <= high:
+            raise ValueError(f"the response {response!r} of run {number} is {value:g}, "
+                             f"outside {low:g} to {high:g} in size: its sums of squares would "
+                             "over- or underflow; rescale the column")
+
+
 def _names(text: str) -> list[str]:
     return [name.strip() for name in text.split(",") if name.strip()]
 
@@ -85,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
             return _exits.error_line(_COMMAND, f"--json: folder {folder} does not exist")
     try:
         table = read_study_table(args.table, [args.response, *factors])
+        _check_response(table, args.response)
         response = _logarithm(table, args.response) if args.log else args.response
         result = anova(table, response, factors, interactions=args.interactions,
                        numeric=_names(args.numeric), ss_type=args.ss_type)
@@ -92,7 +117,14 @@ def run(args: argparse.Namespace) -> int:
         return _exits.error_line(_COMMAND, error.compact())
     except ValueError as error:
         return _exits.error_line(_COMMAND, f"{args.table}: {error}")
+    from fitting.data import first_non_finite
+
+    record = result.to_dict()
+    where = first_non_finite(record)
+    if where is not None:
+        return _exits.error_line(_COMMAND, f"{args.table}: the result {where} is not a finite "
+                                 "number; nothing written")
     print(result.report())
     if args.json is not None:
-        write_json(args.json, result.to_dict())
+        write_json(args.json, record)
     return _exits.OK

@@ -25,20 +25,28 @@ The RTD is ``--model`` with ``--set`` (as for ``axialmix funnel``), or a fit's J
 fit's covariance makes the window uncertain: the conservative window covers the window of
 the true RTD with probability ``--coverage`` (:func:`axialmix.line.conservative_diversion_window`,
 ``--method region``: earliest start and latest stop over ``--samples`` parameter vectors
-filling the fit's confidence region, log-normal for positive parameters). Exit status: 0
-done, 2 bad input (one line, nothing written).
+filling the fit's confidence region, log-normal for positive parameters). Samples whose
+prediction is not finite, or whose outlet has not settled by the end of the scan, are counted
+(``failed_samples`` in the JSON); past 1 % of them the conservative window is refused (exit 2,
+one line with the nominal window) rather than made of the samples that worked. The scan runs
+to ``--until`` at least and continues, at the same spacing, until the disturbance's effect has
+settled, so no window is cut by it. ``--points`` and ``--samples`` are bounded (1,000,000
+each, and the library's bound on model evaluations and memory), refused up front with the
+estimate. Exit status: 0 done, 2 bad input (one line, nothing written).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import re
 
 from fitting.cli.funnel import (
     OptionError,
     add_model_options,
     check_output,
     numbers,
+    require_finite_record,
     rtd_from_options,
     write_plot_png,
 )
@@ -67,6 +75,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "and how much, from a model or a fit (with a conservative window from its "
         "covariance).",
     )
+    # "--limits -5,5" (the documented form): a value that starts with a minus sign and holds
+    # only numbers and commas is a value, not an option.
+    parser._negative_number_matcher = re.compile(r"^-[\d.,eE+-]+$")
     add_model_options(parser)
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--disturbance", metavar="KIND:KEY=VALUE,...",
@@ -137,7 +148,7 @@ def _read_trace(path: str):
         table = read_table(path, decimal="auto")
         if len(table.columns) < 2:
             raise table.error("needs two columns: time and content")
-        rows, values = table.numbers([0, 1], allow_extra_cells=True)
+        rows, values = table.numbers([0, 1])
     except DataError as error:
         raise OptionError(error.compact()) from None
     if rows.size < 2:
@@ -156,6 +167,9 @@ def _limits(args) -> tuple[float, float]:
     low, high = given
     if not math.isfinite(args.target):
         raise OptionError("--target must be a finite number")
+    if not args.absolute_limits and not args.target > 0:
+        raise OptionError(f"--target {args.target:g}: limits in percent of the target need a "
+                          "positive target (or give --absolute-limits)")
     if not args.absolute_limits:
         low, high = args.target * (1 + low / 100), args.target * (1 + high / 100)
     if not low < high:
@@ -166,13 +180,26 @@ def _limits(args) -> tuple[float, float]:
     return low, high
 
 
+#: Largest --points and --samples accepted (with the evaluation bound of the library).
+MAX_POINTS = 1_000_000
+MAX_SAMPLES = 1_000_000
+
+
 def _check(args) -> None:
     if args.points < 16:
         raise OptionError("--points must be at least 16")
+    if args.points > MAX_POINTS:
+        raise OptionError(f"--points {args.points}: a scan of that many times needs about "
+                          f"{args.points * 64 / 2**30:.3g} GiB and {2 * args.points:.3g} "
+                          f"model evaluations per event; at most {MAX_POINTS:,} are accepted")
     if not 0 < args.coverage < 1:
         raise OptionError("--coverage must lie between 0 and 1")
     if args.samples < 2:
         raise OptionError("--samples must be at least 2")
+    if args.samples > MAX_SAMPLES:
+        raise OptionError(f"--samples {args.samples}: about {args.samples * 256:.3g} model "
+                          f"evaluations per disturbance event and {args.samples * 64 / 2**20:.3g}"
+                          f" MiB of samples; at most {MAX_SAMPLES:,} are accepted")
     if args.flow is not None and not (math.isfinite(args.flow) and args.flow > 0):
         raise OptionError("--flow must be a positive number (kg/h)")
     if args.until is not None and not math.isfinite(args.until):
@@ -222,6 +249,9 @@ def run(args: argparse.Namespace) -> int:
 
     from axialmix._files import write_json
     from axialmix.line import Disturbance, conservative_diversion_window, diversion_window
+    from fitting.solve import enable_compilation_cache
+
+    enable_compilation_cache()  # compiled programs kept on disk for the next run
 
     unit = fitted.unit()
     time_unit, content_unit = fitted.time_unit, args.content_unit
@@ -243,8 +273,15 @@ def run(args: argparse.Namespace) -> int:
         disturbance = Disturbance.trace(trace_times, contents - args.target, **units)
         first, last = float(trace_times[0]), float(trace_times[-1])
         disturbance_record = {"kind": "trace", "file": args.trace, "samples": int(contents.size)}
-    spread = float(np.sqrt(unit.variance()))
-    until = args.until if args.until is not None else last + float(unit.mean()) + 10 * spread
+    mean, spread = float(unit.mean()), float(np.sqrt(unit.variance()))
+    source = args.model if description.get("source") else "--model"
+    until = args.until if args.until is not None else last + mean + 10 * spread
+    if not (math.isfinite(mean) and math.isfinite(spread) and math.isfinite(until)):
+        values = ", ".join(f"{name}={value:g}" for name, value in
+                           zip(fitted.parameter_names, fitted.values.tolist(), strict=True))
+        return _exits.error_line(_COMMAND, f"{source}: the RTD at {values} has no finite "
+                                 f"mean residence time and spread ({mean:g}, {spread:g} "
+                                 f"{time_unit}) to scan over")
     begin = min(0.0, first)
     if not until > begin:
         return _exits.error_line(_COMMAND, f"--until {until:g} must be after {begin:g}")
@@ -252,9 +289,18 @@ def run(args: argparse.Namespace) -> int:
     flow = 1.0 if args.flow is None else args.flow * seconds / _HOUR  # kg per time unit
     amount_unit = "kg" if args.flow is not None else ""
     limits = {"target": args.target, "lower": lower, "upper": upper}
-    nominal = diversion_window(unit, disturbance, times, flow=flow, content_unit=content_unit,
-                               amount_unit=amount_unit, **limits)
+    from axialmix.line import DiversionRefused, DiversionTooLarge
+
+    try:
+        nominal = diversion_window(unit, disturbance, times, flow=flow,
+                                   content_unit=content_unit, amount_unit=amount_unit,
+                                   **limits)
+    except DiversionTooLarge as error:
+        return _exits.error_line(_COMMAND, f"--points {args.points}: {error}")
+    except ValueError as error:
+        return _exits.error_line(_COMMAND, f"{source}: {error}")
     conservative = None
+    scale = "linear"
     if fitted.free:
         values = np.asarray(fitted.free_values)
         covariance = np.asarray(fitted.covariance)
@@ -267,16 +313,36 @@ def run(args: argparse.Namespace) -> int:
                 coverage=args.coverage, method=args.method, samples=args.samples,
                 seed=args.seed, scale=scale, content_unit=content_unit,
                 amount_unit=amount_unit, **limits)
+        except DiversionTooLarge as error:
+            return _exits.error_line(_COMMAND, f"--{error.option} "
+                                     f"{getattr(args, error.option)}: {error}")
+        except DiversionRefused as error:
+            relative = np.sqrt(np.clip(np.diagonal(covariance), 0.0, None))
+            widest = int(np.argmax(relative))
+            kind = "relative " if scale == "log" else ""
+            return _exits.error_line(
+                _COMMAND, f"{source}: conservative window refused: {error} (widest: "
+                f"{fitted.free[widest]} with a {kind}standard error of "
+                f"{relative[widest]:.3g}); nominal window: {_describe(nominal, time_unit, '')}")
         except ValueError as error:
-            return _exits.error_line(_COMMAND, str(error))
+            return _exits.error_line(_COMMAND, f"{source}: {error}")
+    numbers_out = [nominal.start, nominal.stop, nominal.diverted_amount]
+    if any(math.isinf(float(x)) and float(x) < 0 for x in numbers_out):
+        return _exits.error_line(_COMMAND, f"{source}: the window has no finite start")
     outlet = np.asarray(nominal.outlet)
     print(f"diversion for {description['model']} ({unit.model.name}), mean residence time "
           f"{float(unit.mean()):.4g} {time_unit}; limits [{lower:g}, {upper:g}] {content_unit}"
           f", outlet content from {outlet.min():.4g} to {outlet.max():.4g}")
+    scan_end = float(nominal.times[-1])
+    if scan_end > until * (1 + 1e-12):
+        print(f"scan continued to {scan_end:.4g} {time_unit} (the outlet had not settled by "
+              f"{until:g} {time_unit})")
     print("nominal: " + _describe(nominal, time_unit, amount_unit))
     if conservative is not None:
+        failed = (f", {conservative.failed_samples} failed samples left out"
+                  if conservative.failed_samples else "")
         print(f"conservative ({args.coverage:.0%}, {args.method} over {args.samples} samples "
-              f"of the fit's covariance, {scale} scale): "
+              f"of the fit's covariance, {scale} scale{failed}): "
               + _describe(conservative, time_unit, amount_unit))
     elif not fitted.free:
         print("no conservative window: the RTD has no covariance (give a fit's JSON file)")
@@ -289,7 +355,8 @@ def run(args: argparse.Namespace) -> int:
             "lower": lower,
             "upper": upper,
             "flow": None if args.flow is None else {"value": args.flow, "unit": "kg/h"},
-            "scan": {"start": begin, "end": until, "points": args.points},
+            "scan": {"start": begin, "end": scan_end, "points": int(nominal.times.shape[0]),
+                     "requested_end": until},
             "nominal": nominal.to_dict(),
             "conservative": None,
         }
@@ -298,8 +365,14 @@ def run(args: argparse.Namespace) -> int:
             record["conservative"] = {**summary["conservative"],
                                       **{k: summary[k] for k in ("coverage", "method",
                                                                  "samples", "valid_samples",
+                                                                 "failed_samples",
+                                                                 "scan_end",
                                                                  "diverting_fraction")},
                                       "scale": scale, "seed": args.seed}
+        try:
+            require_finite_record(record)
+        except OptionError as error:
+            return _exits.error_line(_COMMAND, f"{source}: {error}")
         write_json(args.json, record)
     if args.png is not None:
         from axialmix.line import plot_diversion

@@ -565,6 +565,47 @@ def _read_study(args: argparse.Namespace, files: Sequence[Path]):
         raise InputError(error.compact()) from None
 
 
+#: Memory a study worker process needs (JAX, the compiled solvers, a chunk of curves).
+_WORKER_BYTES = 768 * 2**20
+
+
+def _check_workers(workers: int) -> None:
+    """--workers: at least 1, at most the cores of the machine and what its memory holds."""
+    cores = os.cpu_count() or 1
+    try:
+        memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        memory = cores * _WORKER_BYTES
+    limit = max(1, min(cores, memory // _WORKER_BYTES))
+    if not 1 <= workers <= limit:
+        raise InputError(f"--workers {workers}: this machine runs 1 to {limit} worker "
+                         f"processes ({cores} cores, {memory / 2**30:.3g} GiB at "
+                         f"{_WORKER_BYTES / 2**20:.0f} MiB a worker)")
+
+
+def _check_scheduler(address: str) -> None:
+    """--scheduler: a tcp:// or tls:// address with a host and a port that answers."""
+    import socket
+    from urllib.parse import urlsplit
+
+    try:
+        parts = urlsplit(address.strip())
+        port = parts.port
+    except ValueError as error:
+        raise InputError(f"--scheduler {address!r}: not an address ({error})") from None
+    if parts.scheme not in ("tcp", "tls") or not parts.hostname or port is None:
+        raise InputError(f"--scheduler {address!r}: expected tcp://HOST:PORT (or tls://)")
+    if not 1 <= port <= 65535:
+        raise InputError(f"--scheduler {address!r}: port {port} is not 1 to 65535")
+    try:
+        with socket.create_connection((parts.hostname, port), timeout=5.0):
+            pass
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        raise InputError(f"--scheduler {address}: no scheduler answers there ({reason})"
+                         ) from None
+
+
 def _run_study(args: argparse.Namespace, files: Sequence[Path], models, every_settings,
                free: tuple[str, ...], out: Path) -> int:
     """Check the study options and input, then fit the study (see the module docstring)."""
@@ -582,8 +623,10 @@ def _run_study(args: argparse.Namespace, files: Sequence[Path], models, every_se
     if args.workers is not None and args.scheduler is not None:
         raise InputError("--workers starts a local cluster, --scheduler uses a running one: "
                          "give one of them")
-    if args.workers is not None and not 1 <= args.workers <= 1024:
-        raise InputError(f"--workers: must be 1 to 1024 processes, got {args.workers}")
+    if args.workers is not None:
+        _check_workers(args.workers)
+    if args.scheduler is not None:
+        _check_scheduler(args.scheduler)
     if (args.workers is not None or args.scheduler is not None) and (
             importlib.util.find_spec("distributed") is None):
         raise InputError("--workers and --scheduler need Dask: pip install 'axialmix[dask]'")
@@ -817,6 +860,9 @@ class _Run(_Supervised):
             self._supervise("axialmix-fit")
         finally:
             self.lock.release()
+            if self.created and not self.records:
+                with contextlib.suppress(OSError):
+                    self.out.rmdir()  # a run that wrote nothing leaves no folder
             if in_main:
                 signal.signal(signal.SIGINT, previous)
         return self._outcome()

@@ -37,6 +37,7 @@ __all__ = [
     "check_output",
     "fitted_rtd",
     "numbers",
+    "require_finite_record",
     "rtd_from_options",
     "run",
     "write_plot_png",
@@ -99,20 +100,41 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 # ------------------------------------------------------------------ the adapter
 def numbers(option: str, text: str) -> list[float]:
-    """Comma-separated finite numbers of an option; :class:`OptionError` otherwise."""
+    """Comma-separated finite numbers of an option (the grammar of data cells: no
+    underscores); :class:`OptionError` otherwise."""
+    from axialmix._csv import parse_number
+
     cells = [cell.strip() for cell in text.split(",")]
     if not text.strip() or any(cell == "" for cell in cells):
         raise OptionError(f"{option} needs comma-separated numbers, got {text!r}")
     values = []
     for cell in cells:
         try:
-            value = float(cell)
+            value = parse_number(cell)
         except ValueError:
             raise OptionError(f"{option}: {cell!r} is not a number") from None
         if not math.isfinite(value):
             raise OptionError(f"{option}: {cell!r} is not a finite number")
         values.append(value)
     return values
+
+
+def require_finite_record(record: Any) -> None:
+    """:class:`OptionError` naming the first non-finite number in a JSON-bound record."""
+    from fitting.data import first_non_finite
+
+    where = first_non_finite(record)
+    if where is not None:
+        raise OptionError(f"the result {where} is not a finite number; nothing written")
+
+
+def _time_unit(option: str, unit: str) -> str:
+    from fitting.data import TIME_UNIT_SECONDS
+
+    if unit not in TIME_UNIT_SECONDS:
+        raise OptionError(f"{option}: unknown time unit {unit!r} (known: "
+                          + ", ".join(TIME_UNIT_SECONDS) + ")")
+    return unit
 
 
 def _settings(items: Sequence[str]) -> dict[str, float]:
@@ -138,6 +160,15 @@ def _covariance(record: Mapping[str, Any], free: Sequence[str], source: str) -> 
     if any(e is None or not math.isfinite(e) for e in errors):
         raise OptionError(f"{source}: the fit has no standard error for some of "
                           f"{', '.join(free)}")
+    for name, error in zip(free, errors, strict=True):
+        if not math.isfinite(float(error) * float(error)):
+            raise OptionError(f"{source}: the standard error {error:g} of {name} has no "
+                              "finite square (variance); the fit's covariance is unusable")
+    size = len(names)
+    if (not isinstance(matrix, list) or len(matrix) != size
+            or any(not isinstance(row, list) or len(row) != size for row in matrix)):
+        raise OptionError(f"{source}: the fit's correlation matrix is not {size} x {size} "
+                          f"for its {size} names")
     index = [names.index(name) for name in free]
     covariance = []
     for a, i in enumerate(index):
@@ -146,6 +177,9 @@ def _covariance(record: Mapping[str, Any], free: Sequence[str], source: str) -> 
             r = matrix[i][j]
             if r is None:
                 raise OptionError(f"{source}: the fit's correlation matrix has empty entries")
+            if not isinstance(r, int | float) or not math.isfinite(r):
+                raise OptionError(f"{source}: the fit's correlation matrix has a "
+                                  f"non-numeric or non-finite entry {r!r}")
             row.append(float(r) * errors[a] * errors[b])
         covariance.append(row)
     return covariance
@@ -200,7 +234,7 @@ def fitted_rtd(record: Mapping[str, Any], overrides: Mapping[str, float] | None 
     free = [name for name in names if name not in overrides
             and parameters[name].get("vary") and not parameters[name].get("expr")]
     covariance = _covariance(record, free, source) if free else []
-    time_unit = record.get("time_unit") or "s"
+    time_unit = _time_unit(f"{source}: time_unit", record.get("time_unit") or "s")
     try:
         fitted = FittedRTD.from_parameters(line_model, values, free=free,
                                            covariance=covariance or None, time_unit=time_unit,
@@ -222,6 +256,8 @@ def rtd_from_options(args: argparse.Namespace):
     from axialmix.line import UNIT_BUILDERS, FittedRTD
 
     overrides = _settings(args.set)
+    if args.time_unit is not None:
+        _time_unit("--time-unit", args.time_unit)
     model = args.model
     path = Path(model)
     if model in LINE_MODELS:
@@ -257,6 +293,7 @@ def rtd_from_options(args: argparse.Namespace):
     else:
         raise OptionError(f"--model {model}: no such model or file (models: "
                           + ", ".join(LINE_MODELS) + ")")
+    _check_ranges(fitted, "--set" if source is None else source, overrides)
     errors = dict(zip(fitted.free, [float(e) for e in fitted.standard_errors], strict=True))
     description = {
         "model": model,
@@ -269,6 +306,21 @@ def rtd_from_options(args: argparse.Namespace):
         "time_unit": fitted.time_unit,
     }
     return fitted, description
+
+
+def _check_ranges(fitted, source: str, overrides: Mapping[str, float]) -> None:
+    """Refuse a Peclet number or tank count outside the range where the models are verified
+    (beyond it their curves may be wrong without a sign: Pe 1e308 gives a zero response)."""
+    from axialmix.analytic import ClosedClosedADM, TanksInSeries, unverified_parameters
+
+    units = {"peclet": lambda v: ClosedClosedADM(1.0, v),
+             "n_tanks": lambda v: TanksInSeries(1.0, v)}
+    for name, value in zip(fitted.parameter_names, fitted.values.tolist(), strict=True):
+        problems = unverified_parameters(units[name](value)) if name in units else []
+        if problems:
+            where = f"--set {name}" if name in overrides else source
+            raise OptionError(f"{where}: {name} = {value:g}: {problems[0]}; the model's curves "
+                              "are not verified there")
 
 
 def check_output(option: str, path: str | None) -> None:
@@ -313,25 +365,35 @@ def run(args: argparse.Namespace) -> int:
 
     from axialmix._files import write_json
     from axialmix.line import funnel
+    from fitting.solve import enable_compilation_cache
+
+    enable_compilation_cache()  # compiled programs kept on disk for the next run
 
     unit = fitted.unit()
     result = funnel(unit, np.asarray(durations), np.asarray(magnitudes),
                     magnitude_unit=args.magnitude_unit)
-    if not np.all(np.isfinite(np.asarray(result.max_deviation))):
-        return _exits.error_line(_COMMAND, "the model gives no finite funnel at these "
-                                 "parameters")
+    values = ", ".join(f"{name}={value:g}" for name, value in
+                       zip(fitted.parameter_names, fitted.values.tolist(), strict=True))
+    if not (np.all(np.isfinite(np.asarray(result.max_deviation)))
+            and math.isfinite(float(unit.mean()))):
+        return _exits.error_line(_COMMAND, f"the model gives no finite funnel at {values}")
     print(f"funnel of {description['model']} ({unit.model.name}), mean residence time "
           f"{float(unit.mean()):.4g} {unit.time_unit}: largest outlet deviation, rows "
           f"magnitudes, columns durations")
     print(_table(result))
     if args.json is not None:
-        write_json(args.json, {
+        record = {
             **description,
             "mean_residence_time": float(unit.mean()),
             **result.to_dict(),
             "rows": "magnitudes",
             "columns": "durations",
-        })
+        }
+        try:
+            require_finite_record(record)
+        except OptionError as error:
+            return _exits.error_line(_COMMAND, f"{values}: {error}")
+        write_json(args.json, record)
     if args.png is not None:
         from axialmix.line import plot_funnel
 

@@ -94,7 +94,8 @@ def _read_study(path, curve_column: str, time_column: str | None, value_column: 
     from fitting.study import read_long_csv
 
     study = read_long_csv(path, curve_column, time_column=time_column,
-                          value_column=value_column, factors=factor_columns, decimal=decimal)
+                          value_column=value_column, factors=factor_columns, decimal=decimal,
+                          factors_option="--law")
     factors = {}
     for j, name in enumerate(study.factors):
         column = []
@@ -175,6 +176,14 @@ def run(args: argparse.Namespace) -> int:
         return _exits.error_line(_COMMAND, error.compact())
     except ValueError as error:
         return _exits.error_line(_COMMAND, f"{args.table}: {error}")
+    from fitting.data import first_non_finite
+
+    record = _to_dict(result, two_stage)
+    where = first_non_finite(record)
+    if where is not None:
+        return _exits.error_line(_COMMAND, f"{args.table}: the {spec.model} fit with "
+                                 f"{' and '.join(args.law) or 'no law'}: the result {where} is "
+                                 "not a finite number; nothing written")
     print(result.report())
     for estimate in two_stage:
         print(estimate.report(result.units))
@@ -186,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{curve:<12} " + " ".join(f"{table[n][i]:>16.5g} {table[n + '_stderr'][i]:>9.3g}"
                                          for n in names))
     if args.json is not None:
-        write_json(args.json, _to_dict(result, two_stage))
+        write_json(args.json, record)
     if args.csv is not None:
         write_csv(args.csv, list(table), list(zip(*table.values(), strict=True)))
     return _exits.OK if result.converged else _exits.FAILED

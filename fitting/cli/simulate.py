@@ -21,6 +21,7 @@ import argparse
 import contextlib
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -170,6 +171,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="batch V-blender chain V1-V5",
         description="Batch V-blender chain V1-V5: species-1 counts and chi-square per report.",
     )
+    # "--exchanges -1,2,3,4": a value starting with a minus sign that holds only numbers and
+    # commas is a value, not an option.
+    vblender._negative_number_matcher = re.compile(r"^-[\d.,eE+-]+$")
     vblender.add_argument(
         "--loading",
         type=_loading,
@@ -467,6 +471,25 @@ def _option(name: str):
         raise _BadInput(f"{name}: {str(error).rstrip('.')}") from None
 
 
+def _sample_range(args, steps_done: int, tracer_step: int, tau: float, dt: float):
+    """First and last step of the outflow samples' span."""
+    if args.feeder:
+        return steps_done // 2, steps_done - 1
+    return tracer_step, min(steps_done - 1,
+                            tracer_step + math.ceil(_SAMPLE_WINDOW_IN_TAU * tau / dt))
+
+
+def _check_samples(args, network, steps: int, tracer, tau: float) -> None:
+    """Refuse, before the run, samples larger than what the blender holds."""
+    if args.samples == 0:
+        return
+    if args.sample_size > network.n_particles:
+        raise _BadInput(f"--sample-size {args.sample_size} is more than the "
+                        f"{network.n_particles} particles the blender holds")
+    # Whether the outflow fills the samples depends on the run; an outflow that falls short
+    # is refused after it, before anything is written (see _outflow_samples).
+
+
 def _run_continuous(args) -> int:
     import numpy as np
 
@@ -511,6 +534,7 @@ def _run_continuous(args) -> int:
         )
     tracer = TracerPulse(args.pulse_step, args.tracer or max(inlet_holdup // 2, 1),
                          tracer_species)
+    _check_samples(args, network, steps, tracer, tau)
     result = _simulate(args, network, initial, steps, args.report_every, feed=feed,
                        tracer=tracer)
     times, exit_age = exit_age_from_outflow(
@@ -598,11 +622,7 @@ def _outflow_samples(args, result, names: list[str], tracer, tau: float) -> dict
     dt = result.network.step_seconds
     steps_done = result.steps_completed
     species = 1 if args.feeder else len(names) - 1
-    if args.feeder:
-        first, last = steps_done // 2, steps_done - 1
-    else:
-        first = tracer.step
-        last = min(steps_done - 1, tracer.step + math.ceil(_SAMPLE_WINDOW_IN_TAU * tau / dt))
+    first, last = _sample_range(args, steps_done, tracer.step, tau, dt)
     out: dict = {
         "species": names[species],
         "particles_per_sample": args.sample_size,
@@ -614,7 +634,9 @@ def _outflow_samples(args, result, names: list[str], tracer, tau: float) -> dict
     if args.samples == 0 or last <= first:
         return out
     sample_steps = np.unique(np.linspace(first, last, args.samples + 1).astype(int)[1:])
-    drawn = sample_outflow(result.outflow, sample_steps, args.sample_size, seed=[args.seed, 2])
+    with _option("--samples"):  # an outflow that fell short of the planned one
+        drawn = sample_outflow(result.outflow, sample_steps, args.sample_size,
+                               seed=[args.seed, 2])
     fractions = species_fraction(drawn, species)
     out["steps"] = sample_steps.tolist()
     # What leaves during step k is reported at the end of the step, (k + 1) dt, and tracer
@@ -626,9 +648,10 @@ def _outflow_samples(args, result, names: list[str], tracer, tau: float) -> dict
         if fractions.size >= 2 and fractions.mean() > 0:
             out["rsd"] = relative_standard_deviation(fractions)
         fed = result.fed.sum(axis=1)
-        inflow = species_fraction(
-            sample_outflow(fed, sample_steps, args.sample_size, seed=[args.seed, 3]), species
-        )
+        with _option("--samples"):
+            inflow = species_fraction(
+                sample_outflow(fed, sample_steps, args.sample_size, seed=[args.seed, 3]),
+                species)
         out["inflow_fractions"] = inflow.tolist()
         out["variance_in"] = sample_variance(inflow)
         out["variance_out"] = sample_variance(fractions)

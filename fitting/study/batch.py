@@ -315,6 +315,9 @@ class StudyRun:
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.journal = self.folder / JOURNAL_NAME
+        if self.journal.exists() and not self.journal.is_file():
+            raise ValueError(f"{self.journal} is not a file (a folder?): it cannot be the "
+                             "study's journal; remove it or give another --out")
         self.lock = threading.Lock()
         self.header = {"study": study.source, "digest": study.digest(), "n_curves": len(study),
                        "factors": list(study.factors), "plan": plan.describe()}

@@ -119,6 +119,7 @@ def read_long_csv(
     inlet_column: str | int | None = None,
     factors: Sequence[str] | None = None,
     decimal: str = "auto",
+    factors_option: str = "--factors",
 ) -> Study:
     """Read a study from one long table: a curve-id column, samples, and factor columns.
 
@@ -131,6 +132,7 @@ def read_long_csv(
     - `inlet_column`: a column with the inlet signal at the same times, or ``None``.
     - `factors`: the factor columns; ``None`` (default): every other column.
     - `decimal`: ``'auto'``, ``'.'`` or ``','`` as in :func:`axialmix._csv.read_table`.
+    - `factors_option`: the option that named `factors`, for messages.
 
     **Returns:** a :class:`Study`, curves in the order their ids first appear.
 
@@ -161,11 +163,17 @@ def read_long_csv(
     if factors is None:
         factor_cols = [c for c in table.columns if c.index not in taken]
     else:
-        factor_cols = [column(name, "--factors") for name in factors]
+        factor_cols = [column(name, factors_option) for name in factors]
+        roles = {curve_col.index: "curve id column (--curve-column)",
+                 time_col.index: "time column (--time-column)",
+                 value_col.index: "value column (--value-column)"}
+        if inlet_col is not None:
+            roles[inlet_col.index] = "inlet column (--inlet-column)"
         for factor in factor_cols:
             if factor.index in taken:
-                raise table.error(f"--factors: column {factor.label!r} is the curve id, time, "
-                                  "value or inlet column")
+                role = roles.get(factor.index, "curve id, time, value or inlet column")
+                raise table.error(f"{factors_option}: column {factor.label!r} is the {role}; "
+                                  "a factor must be another column")
     time_unit = column_time_unit(table, time_col)
 
     groups: dict[str, list[int]] = {}
