@@ -282,8 +282,11 @@ def test_profile_of_k_s_finds_the_mirror_solution_of_the_tied_fit(four_compartme
     print(profile)
     assert profile.converged.all()
     assert len(profile.regions) == 2
+    # The fit lands on either of the two mirror-image solutions (which one follows the
+    # round-off of the processor): one region holds the fitted k_s, the other the fitted k_f.
     (low_1, high_1), (low_2, high_2) = profile.regions
-    assert low_1 < k_s < high_1 and low_2 < k_f < high_2
+    assert (low_1 < k_s < high_1 and low_2 < k_f < high_2) or (
+        low_1 < k_f < high_1 and low_2 < k_s < high_2)
     # The mirror's own minimum equals the fit's: the re-fits there reach the fit's SSE to
     # within the grid's coarseness (a 6 % step in k_s; the profile is flat to second order).
     near_mirror = np.abs(np.log(profile.values / k_f)) < 0.07

@@ -154,8 +154,13 @@ K_OUT = 0.8  # 1/s, the examples' design value (examples/make_data.py)
 
 
 @pytest.mark.slow
-def test_gradient_fit_beats_source_grid_with_50_times_fewer_evaluations():
-    """Each example curve: least-squares L-BFGS from 3 starts vs the full 0.125 grid."""
+def test_gradient_fit_beats_source_grid_with_40_times_fewer_evaluations():
+    """Each example curve: least-squares L-BFGS from 3 starts vs the full 0.125 grid.
+
+    The bound is 40 times, below the 47 to 50 times measured: the L-BFGS line searches follow
+    the compiled model's round-off, which depends on the processor's instruction set (the
+    horizontal curve takes 185 evaluations on one machine, 197 on another).
+    """
     curves = read_many(EXAMPLES)
     assert len(curves) == 5
     grid = source_flux_grid()
@@ -166,7 +171,7 @@ def test_gradient_fit_beats_source_grid_with_50_times_fewer_evaluations():
         fitted = fit(four_compartment, curve, held, loss="sse", n_starts=3, warmup_steps=0)
         assert best.n_evaluations == 9261
         assert fitted.loss <= best.loss, curve.name
-        assert 50 * fitted.n_evaluations <= best.n_evaluations, curve.name
+        assert 40 * fitted.n_evaluations <= best.n_evaluations, curve.name
         # The evaluation count is that of the model: compare the loss at the fitted values
         # with an independent evaluation of the model and loss.
         predicted = np.asarray(four_compartment(curve.time, fitted.values))

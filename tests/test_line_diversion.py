@@ -10,12 +10,14 @@ from scipy.optimize import brentq, curve_fit
 from axialmix.line import (
     Disturbance,
     DiversionRefused,
+    FittedRTD,
     FlowSchedule,
     Line,
     Unit,
     UnitModel,
     conservative_diversion_window,
     diversion_window,
+    outlet_response,
     sample_units,
 )
 
@@ -281,3 +283,62 @@ def test_conservative_window_is_monotone_in_the_covariance():
             if previous is not None:
                 assert start <= previous[0] and stop >= previous[1], (case, k, previous)
             previous = (start, stop)
+
+
+# ------------------------------------------------------------------ numerically inverted units
+EXCHANGE = {"tau": 5.0, "peclet": 20.0, "beta": 0.3, "k_d": 0.5}
+
+
+def test_table_of_an_exchange_unit_agrees_with_its_exact_curves():
+    from axialmix.line import TabulatedRTD
+
+    unit = Unit.closed_closed_exchange(**EXCHANGE)
+    table = TabulatedRTD.from_unit(unit, 60.0, 512)
+    t = np.random.default_rng(3).uniform(0.0, 60.0, 64)
+    np.testing.assert_allclose(np.asarray(table.cumulative(t)), np.asarray(unit.cumulative(t)),
+                               atol=1e-6)
+    peak = float(np.max(unit.exit_age(np.linspace(0.01, 60.0, 400))))
+    np.testing.assert_allclose(np.asarray(table.exit_age(t)), np.asarray(unit.exit_age(t)),
+                               atol=1e-5 * peak)
+    # The ramp response from the Hermite rule against the unit's exact ramp.
+    np.testing.assert_allclose(np.asarray(table.ramp_response(t)),
+                               np.asarray(unit.ramp_response(t)), atol=1e-6 * 60.0)
+
+
+@pytest.mark.study
+def test_conservative_window_of_an_exchange_fit_on_tables_equals_the_exact_samples():
+    """The samples' tables against each sample evaluated on the unit itself (minutes)."""
+    import axialmix.line._diversion as diversion
+
+    names = ("tau", "peclet", "beta", "k_d")
+    values = np.array([EXCHANGE[n] for n in names])
+    covariance = np.diag((0.03 * values) ** 2)
+    factory = FittedRTD.from_parameters("closed_closed_exchange", EXCHANGE, free=names,
+                                        covariance=covariance)
+    disturbance = Disturbance.square(20.0, 3.0, 1.0, value_unit="%")
+    times = np.linspace(0.0, 60.0, 401)
+    limits = {"target": 100.0, "lower": 95.0, "upper": 105.0}
+    tabled = conservative_diversion_window(factory, values, covariance, disturbance, times,
+                                           samples=64, seed=1, **limits)
+    assert tabled.table_intervals is not None
+    assert tabled.table_difference <= diversion.TABLE_TOLERANCE * 10.0
+    # The nominal window on its fine table against roots located on the unit itself.
+    nominal = tabled.nominal
+    assert nominal.table_error < 1e-6
+    exact_unit = factory(values)
+    for end in (float(nominal.start), float(nominal.stop)):
+        outlet = float(100.0 + outlet_response(exact_unit, disturbance, [end]).outlet[0])
+        assert min(abs(outlet - 95.0), abs(outlet - 105.0)) < 1e-7
+    original = diversion._choose_table
+    try:
+        diversion._choose_table = lambda *args: (None, float("nan"), float("nan"))
+        exact = conservative_diversion_window(factory, values, covariance, disturbance, times,
+                                              samples=64, seed=1, **limits)
+    finally:
+        diversion._choose_table = original
+    length = float(exact.stop - exact.start)
+    print(f"\ntables ({tabled.table_intervals} intervals): {float(tabled.start):.9f}–"
+          f"{float(tabled.stop):.9f}; exact samples: {float(exact.start):.9f}–"
+          f"{float(exact.stop):.9f}")
+    assert abs(float(tabled.start - exact.start)) < 1e-4 * length
+    assert abs(float(tabled.stop - exact.stop)) < 1e-4 * length

@@ -26,10 +26,13 @@ ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 
 #: Rows of a report whose values are timings or round-off-level convergence measures: they
-#: differ from machine to machine (and run to run), so they are not compared.
-VOLATILE_ROWS = ("wall time", "time (s)", "gradient norm", "Gauss-Newton step")
-#: Columns of a table (by header) that are timings.
-VOLATILE_COLUMNS = ("time (s)",)
+#: differ from machine to machine (and run to run), so they are not compared. The solver's
+#: evaluation count is among them: the same fit takes 912 evaluations on one processor and
+#: 984 on another (the compiled model's round-off follows the instruction set), while the
+#: fitted values agree to every printed digit.
+VOLATILE_ROWS = ("wall time", "time (s)", "gradient norm", "Gauss-Newton step", "evaluations")
+#: Columns of a table (by header) that are timings or evaluation counts.
+VOLATILE_COLUMNS = ("time (s)", "evaluations")
 
 
 @dataclass(frozen=True)
@@ -90,6 +93,46 @@ def _masked(text: str) -> list[str]:
     return lines
 
 
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
+
+def _last_place(token: str) -> float:
+    """One unit in the last printed place of a number token (``0.0002313`` -> 1e-7)."""
+    mantissa, _, exponent = token.lower().partition("e")
+    decimals = len(mantissa.split(".")[1]) if "." in mantissa else 0
+    return 10.0 ** (int(exponent or 0) - decimals)
+
+
+def _agree(printed: list[str], shown: list[str]) -> bool:
+    """Equal lines, but for printed numbers that differ from the shown ones by at most one
+    unit in their last printed place: the last digit of a rounded value can fall either way
+    on another processor (the round-off of compiled code follows the instruction set)."""
+    if len(printed) != len(shown):
+        return False
+    for mine, theirs in zip(printed, shown, strict=True):
+        if mine == theirs:
+            continue
+        words, expected = mine.split(), theirs.split()
+        if len(words) != len(expected):
+            return False
+        for word, want in zip(words, expected, strict=True):
+            if word == want:
+                continue
+            if not (_NUMBER.fullmatch(word) and _NUMBER.fullmatch(want)):
+                return False
+            if abs(float(word) - float(want)) > 1.000001 * _last_place(want):
+                return False
+    return True
+
+
+def test_numbers_may_differ_in_their_last_printed_digit_only():
+    assert _agree(["loss 8.286e-05 done"], ["loss 8.287e-05 done"])
+    assert _agree(["7.029 +/- 0.39"], ["7.030 +/- 0.39"])
+    assert not _agree(["loss 8.284e-05 done"], ["loss 8.287e-05 done"])
+    assert not _agree(["7.029 +/- 0.39"], ["7.029 +/- 0.40 yes"])
+    assert not _agree(["converged: no"], ["converged: yes"])
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """Run every README example in order in one scratch folder; their outputs by command."""
@@ -132,7 +175,7 @@ def test_a_readme_example_prints_what_the_readme_shows(runs, example):
     status, out, err = outputs[example.command]
     assert status == 0, f"README line {example.line}: {example.command} exited {status}: {err}"
     shown, printed = _masked(example.output), _masked(out)
-    assert printed == shown, (f"README line {example.line}: `{example.command}` prints\n"
+    assert _agree(printed, shown), (f"README line {example.line}: `{example.command}` prints\n"
                               + "\n".join(printed))
 
 
@@ -172,4 +215,4 @@ def test_the_python_example_prints_what_the_readme_shows(tmp_path, monkeypatch):
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
         exec(compile(code, "README.md", "exec"), {"__name__": "readme"})  # noqa: S102
-    assert _masked(stdout.getvalue()) == _masked(shown)
+    assert _agree(_masked(stdout.getvalue()), _masked(shown))

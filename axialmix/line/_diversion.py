@@ -23,6 +23,7 @@ parameter distribution. Two conservative windows are offered:
 from __future__ import annotations
 
 import functools
+import math
 import os
 from collections.abc import Callable
 
@@ -74,6 +75,17 @@ _EXTENSIONS = 6
 _BATCH = 64
 #: Scan times of one covariance sample: every k-th time of the scan, at least this many.
 SAMPLE_SCAN_POINTS = 256
+#: Interval counts tried, coarsest first, for the table of F (and E) that the covariance
+#: samples of a numerically inverted unit are evaluated on (each time of such a unit costs a
+#: contour integral; a sample's scan and root finding ask for about 600 of them).
+TABLE_INTERVALS = (64, 128, 256, 512, 1024)
+#: Intervals of the table that the nominal window of a numerically inverted unit is computed
+#: on, from the unit's exact F (and E) at its nodes; its error is estimated by the table of
+#: every second node and reported with the window.
+NOMINAL_TABLE_INTERVALS = 2048
+#: The coarsest table is taken whose nominal outlet agrees with the exact one at every scan
+#: time within this share of the limits' width; if none does, the samples use the exact unit.
+TABLE_TOLERANCE = 1e-4
 
 
 def memory_budget() -> int:
@@ -122,6 +134,10 @@ class DiversionWindow(eqx.Module):
     - `times`, `outlet`: the output times and the predicted outlet content there.
     - `lower`, `upper`: the specification limits (content unit).
     - `time_unit`, `content_unit`, `amount_unit`: units.
+    - `table_error`: NaN when the window was located on the model itself (to round-off);
+      for a numerically inverted unit, located on a table of its exact F (and E) at
+      :data:`NOMINAL_TABLE_INTERVALS` intervals, the estimate of the outlet's error (content
+      unit: the largest difference to the table of every second node over the scan).
     """
 
     start: Array
@@ -135,6 +151,7 @@ class DiversionWindow(eqx.Module):
     time_unit: str = eqx.field(static=True, default="s")
     content_unit: str = eqx.field(static=True, default="")
     amount_unit: str = eqx.field(static=True, default="")
+    table_error: float = eqx.field(static=True, default=float("nan"))
 
     def to_dict(self) -> dict:
         """Plain JSON-ready dict of the window (NaN and infinities as None and "inf")."""
@@ -148,6 +165,7 @@ class DiversionWindow(eqx.Module):
             "time_unit": self.time_unit,
             "content_unit": self.content_unit,
             "amount_unit": self.amount_unit,
+            "table_error": _number(self.table_error),
         }
 
 
@@ -351,7 +369,11 @@ def diversion_window(
 
     The outlet content ``target + E ⊗ δu`` (:func:`outlet_response`) is scanned on `times`;
     the first exit from ``[lower, upper]`` and the last return are then located exactly by
-    root finding on the model between the neighbouring times (to round-off).
+    root finding on the model between the neighbouring times (to round-off). A unit whose
+    every time is a numerical inversion (``UnitModel.numerical``: the exchange models) is
+    evaluated on a table of its exact F (and E) at :data:`NOMINAL_TABLE_INTERVALS`
+    intervals instead, and the window carries the estimate of that table's error
+    (`table_error`).
 
     **Arguments:**
 
@@ -383,12 +405,16 @@ def diversion_window(
     times = np.asarray(times, float)
     target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
     lags = _lags(disturbance)
+    inverted = _inverted_unit(rtd)
     if extend:
         # The end the scan needs, found first (one small program over the candidate ends),
         # so that the window's program is compiled once, for the scan it runs on.
         ends = _candidate_ends(times)
-        evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(ends)))
-        unsettled = np.asarray(_settle_jit(evaluator, disturbance, jnp.asarray(ends)))
+        if inverted is not None:
+            unsettled = _inverted_unsettled(inverted, disturbance, ends)
+        else:
+            evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(ends)))
+            unsettled = np.asarray(_settle_jit(evaluator, disturbance, jnp.asarray(ends)))
         settled = np.flatnonzero(unsettled <= SETTLED)
         if settled.size == 0:
             raise ValueError(
@@ -397,13 +423,19 @@ def diversion_window(
                 f"{_EXTENSIONS} doublings of the scan); give later times")
         times = _extended(times, 2.0 ** int(settled[0])) if settled[0] else times
     _scan_budget(times.shape[0], lags, "a scan")
-    evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(times)))
+    table_error = float("nan")
+    if inverted is not None:
+        # Each time of such a unit is a contour integral: the window is located on a fine
+        # table of its exact values (one program), whose error is estimated and returned.
+        evaluator, _, table_error = _nominal_table(inverted, disturbance, times)
+    else:
+        evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(times)))
     start, stop, amount, diverts, outlet, _ = _window_jit(
         evaluator, disturbance, jnp.asarray(times), target, lower, upper, flow
     )
     return DiversionWindow(
         start, stop, amount, diverts, jnp.asarray(times), outlet, lower, upper,
-        rtd.time_unit, content_unit, amount_unit,
+        rtd.time_unit, content_unit, amount_unit, table_error,
     )
 
 
@@ -516,6 +548,12 @@ class ConservativeDiversion(eqx.Module):
     - `scan_end`: the end of the scan of the samples (time unit; past the given times when
       the outlet had not settled there).
     - `time_unit`, `amount_unit`: units.
+    - `table_intervals`: None when the samples were evaluated on the unit itself; otherwise
+      the intervals of the table of F (and E) each sample was evaluated on (a numerically
+      inverted unit, see :data:`TABLE_INTERVALS`).
+    - `table_difference`: the largest difference between the nominal outlet from such a table
+      and the exact one over the nominal scan (content unit; at most
+      :data:`TABLE_TOLERANCE` of the limits' width).
     """
 
     nominal: DiversionWindow
@@ -533,6 +571,8 @@ class ConservativeDiversion(eqx.Module):
     scan_end: float = eqx.field(static=True, default=float("nan"))
     time_unit: str = eqx.field(static=True, default="s")
     amount_unit: str = eqx.field(static=True, default="")
+    table_intervals: int | None = eqx.field(static=True, default=None)
+    table_difference: float = eqx.field(static=True, default=float("nan"))
 
     def to_dict(self) -> dict:
         """Plain JSON-ready dict: the nominal and the conservative window and how it was made."""
@@ -550,25 +590,79 @@ class ConservativeDiversion(eqx.Module):
             "failed_samples": self.failed_samples,
             "scan_end": _number(self.scan_end),
             "diverting_fraction": float(self.diverting_fraction),
+            "sample_table": None if self.table_intervals is None else {
+                "intervals": self.table_intervals,
+                "nominal_outlet_difference": _number(self.table_difference),
+            },
             "time_unit": self.time_unit,
             "amount_unit": self.amount_unit,
         }
 
 
-def _sample_windows(unit_factory, parameters, disturbance, times, target, lower, upper, flow,
-                    horizon, batch):
-    """Window ends, diverts, finite and unsettled share of each sample, in batches of `batch`
-    vectors (one program: ``lax.map`` over batches of a vmapped window)."""
+def _needs(disturbance: Disturbance) -> bool:
+    """Whether a response to `disturbance` uses E (pulses; traces, through the ramp)."""
+    return bool(disturbance.pulse_times.shape[0]) or len(disturbance.traces) > 0
 
-    def one(vector):
-        evaluator = as_evaluator(unit_factory(vector), horizon)
+
+def _inverted_unit(rtd) -> Unit | None:
+    """The unit of `rtd` when its every time is a numerical inversion, else None."""
+    if isinstance(rtd, Line) and len(rtd.units) == 1:
+        rtd = rtd.units[0]
+    return rtd if isinstance(rtd, Unit) and rtd.model.numerical else None
+
+
+@functools.partial(eqx.filter_jit)
+def _exact_curves(unit, times, exit_age):
+    """F (and E, or None) of `unit` at 1-D `times`: the one exact program of an inverted
+    unit's diversion (its tables' nodes and its settle checks share its shape)."""
+    return (unit._curve("cumulative", times),
+            unit._curve("exit_age", times) if exit_age else None)
+
+
+@functools.partial(eqx.filter_jit)
+def _exact_sample_curves(unit_factory, parameters, times, exit_age, batch):
+    """:func:`_exact_curves` of every sample's unit ``(samples, times)``, in batches."""
+    return jax.lax.map(lambda vector: _exact_curves(
+        _inverted_unit(unit_factory(vector)), times, exit_age), parameters, batch_size=batch)
+
+
+def _padded(times: np.ndarray, size: int) -> np.ndarray:
+    """`times` padded with zeros to `size` (a settle check borrows a table's program)."""
+    return np.concatenate([times, np.zeros(size - times.shape[0])])
+
+
+def _table(step, cumulative, exit_age, unit):
+    return TabulatedRTD.from_values(step, cumulative, exit_age, unit.mean(), unit.variance(),
+                                    unit.time_unit, ramp=exit_age is not None)
+
+
+def _unsettled_from(cumulative, lags):
+    """``1 - F`` at the lags from the last event (1 where the lag is not positive)."""
+    return jnp.where(lags > 0, 1.0 - cumulative, 1.0)
+
+
+def _sample_windows(unit_factory, parameters, disturbance, times, target, lower, upper, flow,
+                    horizon, tables, batch):
+    """Window ends, diverts, finite and unsettled share of each sample, in batches of `batch`
+    vectors (one program: ``lax.map`` over batches of a vmapped window). `tables` is None
+    (each sample's unit itself) or ``(step, F, E)``: each sample's exact node values
+    ``(samples, N + 1)`` of an inverted unit (E None when the disturbance needs none)."""
+
+    def one(item):
+        vector, cumulative, density = item
+        rtd = unit_factory(vector)
+        if tables is None:
+            evaluator = as_evaluator(rtd, horizon)
+        else:
+            evaluator = _table(tables[0], cumulative, density, _inverted_unit(rtd))
         start, stop, _, diverts, outlet = _window(
             evaluator, disturbance, times, target, lower, upper, flow
         )
         unsettled = _unsettled(evaluator, disturbance, times[-1])
         return start, stop, diverts, jnp.all(jnp.isfinite(outlet)), unsettled
 
-    return jax.lax.map(one, parameters, batch_size=batch)
+    items = (parameters, None, None) if tables is None else (parameters, *tables[1:])
+    return jax.lax.map(one, items, batch_size=batch)
 
 
 _PROGRAMS: dict = {}
@@ -604,7 +698,7 @@ def _sample_scan(times: np.ndarray, step: int) -> np.ndarray:
 
 
 def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lower, upper,
-                      flow, horizon):
+                      flow, horizon, tables=None):
     """Run the sample program in batches sized to :func:`memory_budget`."""
     count = parameters.shape[0]
     batch = min(_BATCH, count)
@@ -614,9 +708,15 @@ def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lowe
         # Whole batches only (a remainder would be a second copy of the program): the last
         # batch is filled with copies of the first vector, whose results are dropped.
         padding = -count % batch
-        parameters = jnp.concatenate([original, jnp.repeat(original[:1], padding, axis=0)])
+
+        def pad(array, padding=padding):
+            return jnp.concatenate([array, jnp.repeat(array[:1], padding, axis=0)])
+
+        parameters = pad(original)
+        padded_tables = None if tables is None else (
+            tables[0], pad(tables[1]), None if tables[2] is None else pad(tables[2]))
         args = (unit_factory, parameters, disturbance, jnp.asarray(times), target, lower,
-                upper, flow, horizon)
+                upper, flow, horizon, padded_tables)
         compiled, temp = _program(args, batch)
         if temp <= budget or batch == 1:
             break
@@ -627,6 +727,118 @@ def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lowe
             f"{temp / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB allowed")
     results = compiled(*args, batch)
     return tuple(result[:count] for result in results)
+
+
+@functools.partial(eqx.filter_jit)
+def _table_outlets(unit, step, cumulative, exit_age, disturbance, times, strides):
+    """The outlet deviation on `times` from the tables of every `stride`-th of the exact node
+    values ``(step, cumulative, exit_age)`` (one row per stride)."""
+    return jnp.stack([response_at(_table(
+        step * stride, cumulative[::stride], None if exit_age is None else exit_age[::stride],
+        unit), disturbance, times) for stride in strides])
+
+
+def _nominal_table(unit: Unit, disturbance: Disturbance, times: np.ndarray):
+    """The table an inverted unit's nominal window is computed on, with the node values, its
+    step and the estimate of its outlet error on `times` (the difference to the table of
+    every second node, content unit; the table's own error is smaller, by about 2⁶ for a
+    smooth curve)."""
+    horizon = float(lag_horizon(disturbance, jnp.asarray(times)))
+    step = horizon / NOMINAL_TABLE_INTERVALS
+    cumulative, density = _exact_curves(
+        unit, jnp.asarray(step * np.arange(NOMINAL_TABLE_INTERVALS + 1)), _needs(disturbance))
+    outlets = np.asarray(_table_outlets(unit, step, cumulative, density, disturbance,
+                                        jnp.asarray(times), (1, 2)))
+    error = float(np.max(np.abs(outlets[0] - outlets[1])))
+    return _table(step, cumulative, density, unit), (step, cumulative, density), error
+
+
+def _inverted_unsettled(unit: Unit, disturbance: Disturbance, ends: np.ndarray) -> np.ndarray:
+    """``1 - F(end - last event)`` of an inverted unit at the candidate `ends`, exactly, by the
+    program of its nominal table."""
+    events = np.asarray(disturbance.event_times())
+    if events.size == 0:
+        return np.zeros(ends.shape)
+    lags = ends - events.max()
+    cumulative, _ = _exact_curves(unit, jnp.asarray(_padded(
+        np.maximum(lags, 0.0), NOMINAL_TABLE_INTERVALS + 1)), _needs(disturbance))
+    return np.asarray(_unsettled_from(cumulative[: ends.shape[0]], jnp.asarray(lags)))
+
+
+def _choose_table(unit: Unit, nominal: DiversionWindow, disturbance: Disturbance, target,
+                  lower, upper):
+    """The coarsest interval count of :data:`TABLE_INTERVALS` whose table's nominal outlet
+    agrees with the nominal window's within :data:`TABLE_TOLERANCE` of the limits' width on
+    the nominal scan, the table's step (time unit) and that difference (content unit); the
+    count is None when no table is close enough."""
+    _, (step, cumulative, density), _ = _nominal_table(unit, disturbance,
+                                                       np.asarray(nominal.times))
+    strides = tuple(NOMINAL_TABLE_INTERVALS // n for n in TABLE_INTERVALS)
+    outlets = np.asarray(_table_outlets(unit, step, cumulative, density, disturbance,
+                                        nominal.times, strides))
+    differences = np.max(np.abs(outlets - (np.asarray(nominal.outlet) - float(target))),
+                         axis=1)
+    allowed = TABLE_TOLERANCE * float(upper - lower)
+    for intervals, stride, difference in zip(TABLE_INTERVALS, strides, differences,
+                                             strict=True):
+        if difference <= allowed:
+            return intervals, step * stride, float(difference)
+    return None, float("nan"), float("nan")
+
+
+def _sample_grid(disturbance: Disturbance, scan: np.ndarray, step: float):
+    """Spacing, interval count and horizon of the samples' tables over the lags of `scan`:
+    spacing at most `step`, the count a power of two (extended scans keep the spacing)."""
+    horizon = float(lag_horizon(disturbance, jnp.asarray(scan)))
+    intervals = 1 << max(0, math.ceil(math.log2(horizon / step - 1e-9)))
+    return horizon / intervals, intervals, horizon
+
+
+def _pad_rows(parameters, batch: int):
+    return jnp.concatenate([parameters, jnp.repeat(parameters[:1], -parameters.shape[0] % batch,
+                                                   axis=0)])
+
+
+def _sample_tables(unit_factory, parameters, disturbance, scan, step: float, batch: int):
+    """Each sample's exact node values on the grid of :func:`_sample_grid`: ``(step, F, E)``
+    with ``(samples, N + 1)`` arrays, and the horizon."""
+    grid, intervals, horizon = _sample_grid(disturbance, scan, step)
+    count = parameters.shape[0]
+    cumulative, density = _exact_sample_curves(
+        unit_factory, _pad_rows(parameters, batch),
+        jnp.asarray(grid * np.arange(intervals + 1)), _needs(disturbance), batch)
+    return (grid, cumulative[:count], None if density is None else density[:count]), horizon
+
+
+def _sample_settle_exact(unit_factory, parameters, disturbance, scan, step: float, ends,
+                         batch: int) -> np.ndarray:
+    """``1 - F(end - last event)`` of each sample at the candidate `ends` ``(samples, ends)``,
+    by the samples' table program (the lags padded to its node count)."""
+    events = np.asarray(disturbance.event_times())
+    count = parameters.shape[0]
+    if events.size == 0:
+        return np.zeros((count, ends.shape[0]))
+    _, intervals, _ = _sample_grid(disturbance, scan, step)
+    lags = ends - events.max()
+    cumulative, _ = _exact_sample_curves(
+        unit_factory, _pad_rows(parameters, batch),
+        jnp.asarray(_padded(np.maximum(lags, 0.0), intervals + 1)), _needs(disturbance),
+        batch)
+    return np.asarray(_unsettled_from(cumulative[:count, : ends.shape[0]], jnp.asarray(lags)))
+
+
+def _settled_scan(settle: np.ndarray, full: np.ndarray, scan: np.ndarray, step: int,
+                  samples: int, lags: int) -> np.ndarray:
+    """The samples' scan doubled (at its spacing) to the latest candidate end at which every
+    sample with finite values has settled, within :data:`MAX_EVALUATIONS` (later samples then
+    count as not settled)."""
+    reaches = settle <= SETTLED
+    needed = np.where(reaches.any(axis=1), np.argmax(reaches, axis=1), _EXTENSIONS)
+    doublings = int(needed[np.isfinite(settle).all(axis=1)].max(initial=0))
+    while doublings and samples * _sample_scan(
+            _extended(full, 2.0 ** doublings), step).shape[0] * lags > MAX_EVALUATIONS:
+        doublings -= 1
+    return _sample_scan(_extended(full, 2.0 ** doublings), step) if doublings else scan
 
 
 def conservative_diversion_window(
@@ -685,7 +897,12 @@ def conservative_diversion_window(
     located exactly on the model), and the scan is extended further, at the same spacing,
     while some sample has not settled. Samples run in batches
     whose memory, measured from the compiled program before any work, stays within
-    :func:`memory_budget`.
+    :func:`memory_budget`. A unit whose every time is a numerical inversion (the exchange
+    models, ``UnitModel.numerical``) is evaluated, sample by sample, on a table of its exact
+    F (and E) at the coarsest grid of :data:`TABLE_INTERVALS` whose nominal outlet agrees
+    with the nominal window's (itself on a table of :data:`NOMINAL_TABLE_INTERVALS`
+    intervals) within :data:`TABLE_TOLERANCE` of the limits' width (the result says which
+    grid and how close); without such a grid the samples use the unit itself.
 
     **Returns:**
 
@@ -702,8 +919,9 @@ def conservative_diversion_window(
         raise ValueError(f"method must be 'region' or 'quantile', got {method!r}.")
     if not 0.0 <= max_failed_share < 1.0:
         raise ValueError(f"max_failed_share must lie in [0, 1), got {max_failed_share!r}.")
+    nominal_rtd = unit_factory(jnp.atleast_1d(jnp.asarray(values, float)))
     nominal = diversion_window(
-        unit_factory(jnp.atleast_1d(jnp.asarray(values, float))), disturbance, times,
+        nominal_rtd, disturbance, times,
         target=target, lower=lower, upper=upper, flow=flow, content_unit=content_unit,
         amount_unit=amount_unit,
     )
@@ -719,27 +937,37 @@ def conservative_diversion_window(
                        coverage if method == "region" else None)
     target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
     full = np.asarray(nominal.times)
-    horizon_args = jnp.asarray(_candidate_ends(full))
-    # The end each sample needs, first (a small program: F at the candidate ends), then the
-    # windows of all samples on one scan to the latest end any of them needs.
     batch = min(_BATCH, parameters.shape[0])
-    padding = -parameters.shape[0] % batch
-    padded = jnp.concatenate([parameters, jnp.repeat(parameters[:1], padding, axis=0)])
-    settle = np.asarray(_sample_settle_jit(
-        unit_factory, padded, disturbance, horizon_args,
-        float(lag_horizon(disturbance, horizon_args)), batch))[: parameters.shape[0]]
-    reaches = settle <= SETTLED
-    needed = np.where(reaches.any(axis=1), np.argmax(reaches, axis=1), _EXTENSIONS)
-    doublings = int(needed[np.isfinite(settle).all(axis=1)].max(initial=0))
-    while doublings and samples * _sample_scan(
-            _extended(full, 2.0 ** doublings), step).shape[0] * lags > MAX_EVALUATIONS:
-        doublings -= 1  # the latest samples then count as not settled
-    if doublings:
-        scan = _sample_scan(_extended(full, 2.0 ** doublings), step)
-    starts, stops, diverts, finite, unsettled = _evaluate_samples(
-        unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
-        float(lag_horizon(disturbance, jnp.asarray(scan))),  # static: a measured grid
-    )
+    inverted = _inverted_unit(nominal_rtd)
+    table_intervals = table_step = None
+    table_difference = float("nan")
+    if inverted is not None:
+        table_intervals, table_step, table_difference = _choose_table(
+            inverted, nominal, disturbance, target, lower, upper)
+    ends = _candidate_ends(full)
+    if table_intervals is not None:
+        # Each sample is evaluated on a table of its exact values, on the scan to the latest
+        # end any of them needs (found first, by the same program).
+        settle = _sample_settle_exact(unit_factory, parameters, disturbance, scan, table_step,
+                                      ends, batch)
+        scan = _settled_scan(settle, full, scan, step, samples, lags)
+        tables, horizon = _sample_tables(unit_factory, parameters, disturbance, scan,
+                                         table_step, batch)
+        starts, stops, diverts, finite, unsettled = _evaluate_samples(
+            unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
+            horizon, tables)
+    else:
+        # The end each sample needs, first (a small program: F at the candidate ends), then
+        # the windows of all samples on one scan to the latest end any of them needs.
+        horizon_args = jnp.asarray(ends)
+        settle = np.asarray(_sample_settle_jit(
+            unit_factory, _pad_rows(parameters, batch), disturbance, horizon_args,
+            float(lag_horizon(disturbance, horizon_args)), batch))[: parameters.shape[0]]
+        scan = _settled_scan(settle, full, scan, step, samples, lags)
+        starts, stops, diverts, finite, unsettled = _evaluate_samples(
+            unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
+            float(lag_horizon(disturbance, jnp.asarray(scan))),  # static: a measured grid
+            None)
     finite, unsettled = np.asarray(finite), np.asarray(unsettled)
     late = finite & ~(unsettled <= SETTLED)
     nonfinite = int((~finite).sum())
@@ -791,4 +1019,6 @@ def conservative_diversion_window(
         float(scan[-1]),
         nominal.time_unit,
         amount_unit,
+        table_intervals,
+        table_difference,
     )

@@ -68,6 +68,70 @@ class TabulatedRTD(eqx.Module):
     variance_value: Array
     time_unit: str = eqx.field(static=True, default="s")
 
+    @classmethod
+    def from_unit(cls, unit: Unit, horizon: ArrayLike, intervals: int, *,
+                  exit_age: bool = True, ramp: bool = True) -> TabulatedRTD:
+        """Tabulate a unit's exact curves on ``k h``, ``h = horizon / intervals`` (traceable).
+
+        F (and E where asked) are the unit's exact values at the ``intervals + 1`` nodes; the
+        ramp response is integrated from them interval by interval with the cubic Hermite
+        rule ``h (F_k + F_k+1)/2 + h² (E_k - E_k+1)/12`` (fourth order). Use it where one
+        unit is evaluated at many times and each costs a numerical inversion; the table's
+        error is that of six-point Lagrange interpolation on the grid (check it against the
+        unit: :func:`axialmix.line.conservative_diversion_window` does).
+
+        **Arguments:**
+
+        - `unit`: the unit.
+        - `horizon`: last node (time unit).
+        - `intervals`: number of grid intervals (static, at least 5).
+        - `exit_age`: tabulate E (needed for pulses and for the ramp response).
+        - `ramp`: tabulate the ramp response (needed for traces); implies `exit_age`.
+
+        **Returns:**
+
+        A :class:`TabulatedRTD`; a curve not tabulated is NaN, so a use of it cannot pass
+        unnoticed.
+        """
+        if not isinstance(intervals, int) or intervals < 5:
+            raise ValueError(f"intervals must be an integer of at least 5, got {intervals!r}.")
+        step = jnp.asarray(horizon, float) / intervals
+        nodes = step * jnp.arange(intervals + 1)
+        density = unit._curve("exit_age", nodes) if (exit_age or ramp) else None
+        return cls.from_values(step, unit._curve("cumulative", nodes), density,
+                               unit.mean(), unit.variance(), unit.time_unit, ramp=ramp)
+
+    @classmethod
+    def from_values(cls, step: ArrayLike, cumulative: Array, exit_age: Array | None,
+                    mean: ArrayLike, variance: ArrayLike, time_unit: str = "s", *,
+                    ramp: bool = True) -> TabulatedRTD:
+        """A table from exact node values ``F(k h)`` (and ``E(k h)``) (traceable).
+
+        **Arguments:**
+
+        - `step`: grid spacing h (time unit).
+        - `cumulative`: F at the nodes ``(N + 1,)``.
+        - `exit_age`: E at the nodes (1/time unit), or None (then E and the ramp are NaN).
+        - `mean`, `variance`: the RTD's exact moments (time, time²).
+        - `time_unit`: unit of time.
+        - `ramp`: integrate the ramp response (cubic Hermite rule; needs `exit_age`).
+
+        **Returns:**
+
+        A :class:`TabulatedRTD`.
+        """
+        step = jnp.asarray(step, float)
+        nan = jnp.full(cumulative.shape, jnp.nan)
+        density = nan if exit_age is None else exit_age
+        if ramp and exit_age is not None:
+            pieces = (step / 2 * (cumulative[:-1] + cumulative[1:])
+                      + step**2 / 12 * (density[:-1] - density[1:]))
+            integral = jnp.concatenate([jnp.zeros(1), jnp.cumsum(pieces)])
+        else:
+            integral = nan
+        return cls(step, density, cumulative, integral, jnp.asarray(mean, float),
+                   jnp.asarray(variance, float), time_unit)
+
     @property
     def horizon(self) -> Array:
         """Last tabulated time (time unit)."""

@@ -95,6 +95,9 @@ class UnitModel:
     - `transfer_function`: ``G(s) = ∫ E e^{-st} dt`` with ``s`` complex in 1/time, or None.
     - `moments`: ``(mean, variance)`` from the parameters (time, time²), or None: they are
       then taken from the derivatives of ``transfer_function`` at ``s = 0``.
+    - `numerical`: True when every time costs a numerical inversion (a contour integral,
+      about 0.1 ms a time): many-sample work such as a diversion's covariance samples then
+      tabulates the curves once per sample (:meth:`TabulatedRTD.from_unit`).
     """
 
     name: str
@@ -105,6 +108,7 @@ class UnitModel:
     transfer_function: CurveFunction | None = None
     moments: Callable[[Parameters, Any], tuple[Array, Array]] | None = None
     positive: tuple[str, ...] = ()
+    numerical: bool = False
 
 
 # ------------------------------------------------------------------ closed–closed ADM
@@ -272,6 +276,7 @@ def transfer_unit_model(
         ramp=ramp_,
         transfer_function=transfer_,
         moments=moments_,
+        numerical=True,
     )
 
 
