@@ -3,6 +3,8 @@
 * ``0``: done.
 * ``2``: bad input or bad options (one line on standard error naming file, row, option or
   network file); nothing was written.
+* ``3``: a study finished with some curves refused (each listed with its reason in the
+  study's ``refused.csv`` and ``summary.json``); the other curves' results are written.
 * ``130``: interrupted (Ctrl-C, 128 + SIGINT); results finished before the interruption are
   kept, and no partial file is left.
 * ``1``: anything else (a bug: the traceback is shown).
@@ -12,11 +14,12 @@ from __future__ import annotations
 
 import sys
 
-__all__ = ["BAD_INPUT", "FAILED", "INTERRUPTED", "OK", "error_line"]
+__all__ = ["BAD_INPUT", "FAILED", "INTERRUPTED", "OK", "REFUSED", "error_line"]
 
 OK = 0
 FAILED = 1
 BAD_INPUT = 2
+REFUSED = 3
 INTERRUPTED = 130
 
 

@@ -299,13 +299,31 @@ def test_study_with_one_noise_dip_fits_every_curve(tmp_path, capsys):
     assert len(rows) == 6
 
 
-def test_study_with_a_gross_negative_sample_is_refused_naming_curve_and_row(tmp_path, capsys):
+def test_study_lists_a_curve_with_a_gross_negative_sample_and_fits_the_others(tmp_path,
+                                                                                capsys):
     study = _long_study(tmp_path / "s.csv", curves=6, dip=-0.30)
-    status = main(["fit", str(study), "--curve-column", "run", "--out", str(tmp_path / "o")])
-    err = capsys.readouterr().err
-    assert status == 2
-    line = err.strip().splitlines()[-1]
-    assert "s.csv:" in line and "c3" in line and "negative value" in line
+    out = tmp_path / "o"
+    status = main(["fit", str(study), "--curve-column", "run", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert status == 3, captured.err
+    assert "Traceback" not in captured.err
+    # One line names file, curve, row and value; the run says how many were refused.
+    (line,) = [x for x in captured.err.splitlines() if "refused" in x]
+    assert "s.csv, row 247" in line and "'c3'" in line \
+        and "negative value" in line, line
+    assert "1 refused" in captured.out
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_curves"] == 6 and summary["n_fitted"] == 5
+    assert summary["n_refused"] == 1 and summary["complete"]
+    assert [r["curve"] for r in summary["refused"]] == ["c3"]
+    assert [r["curve"] for r in summary["curves"]] == ["c0", "c1", "c2", "c4", "c5"]
+    refused = (out / "refused.csv").read_text().splitlines()
+    assert refused[0] == "curve,reason" and refused[1].startswith("c3,")
+    assert len((out / "summary.csv").read_text().splitlines()) == 1 + 5
+    # Run again on the same folder: nothing is left to fit, the same refusal is reported.
+    status = main(["fit", str(study), "--curve-column", "run", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert status == 3 and "1 refused" in captured.out
 
 
 def test_summary_that_is_a_directory_is_refused(tmp_path, capsys):

@@ -106,7 +106,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from axialmix._exits import BAD_INPUT, INTERRUPTED, OK, error_line
+from axialmix._exits import BAD_INPUT, INTERRUPTED, OK, REFUSED, error_line
 
 __all__ = ["add_parser", "run"]
 
@@ -749,8 +749,15 @@ class _StudyExecution(_Supervised):
         rows = list(run.records())
         converged = sum(bool(r["converged"]) for r in rows)
         misfit = sum(bool((r.get("lack_of_fit") or {}).get("systematic")) for r in rows)
+        for reason in run.refused.values():
+            print(f"axialmix fit: refused {reason}", file=sys.stderr)
+        refused = (f"; {len(run.refused)} refused, listed in {self.out / 'refused.csv'} "
+                   f"(exit status {REFUSED})" if run.refused else "")
         print(f"{len(rows)} curves: {converged} converged, {misfit} with systematic misfit; "
-              f"summary in {self.out / 'summary.csv'} and {self.out / 'summary.json'}")
+              f"summary in {self.out / 'summary.csv'} and {self.out / 'summary.json'}"
+              f"{refused}")
+        if run.refused:
+            self.status = REFUSED
 
 
 def run(args: argparse.Namespace) -> int:
@@ -760,7 +767,8 @@ def run(args: argparse.Namespace) -> int:
 
     - `args`: the namespace from the ``fit`` parser (see :func:`add_parser`).
 
-    **Returns:** 0 on success, 2 for bad input (nothing written), 130 after Ctrl-C.
+    **Returns:** 0 on success, 2 for bad input (nothing written), 3 when a study finished
+    with some curves refused (listed in its ``refused.csv``), 130 after Ctrl-C.
     """
     try:
         from fitting.data import DataError, input_files

@@ -182,8 +182,8 @@ def fit_chunk(plan: StudyPlan, curves: Sequence[Curve],
     - `curves`: the curves (raw values, their files' units).
     - `inlets`: per curve its own inlet signal or ``None`` (then the plan's inlet).
 
-    **Returns:** one :func:`fitting.report.fit_record` per curve, in order; a one-line
-    ``ValueError`` naming the curve when one cannot be fitted.
+    **Returns:** one :func:`fitting.report.fit_record` per curve, in order; for a curve that
+    cannot be fitted, ``{"refused": reason}`` (one line naming the curve).
     """
     if not _CACHE_ENABLED.is_set():
         enable_compilation_cache()
@@ -205,13 +205,15 @@ def fit_chunk(plan: StudyPlan, curves: Sequence[Curve],
                 results[i] = result
         else:
             own = sorted(own + shared)
+    refused: dict[int, str] = {}
     for i in own:
         try:
             results[i] = fit(plan_model(plan, inlets[i]), curves[i], settings, **options)
-        except ValueError as error:
-            raise ValueError(f"curve {curves[i].name!r}: {error}") from None
-    return [fit_record(result, None, source=curve.source, length_m=plan.length_m)
-            for result, curve in zip(results, curves, strict=True)]
+        except ValueError as error:  # this curve is listed with its reason, the rest fitted
+            refused[i] = f"curve {curves[i].name!r}: {' '.join(str(error).split())}"
+    return [{"refused": refused[i]} if i in refused else
+            fit_record(result, None, source=curve.source, length_m=plan.length_m)
+            for i, (result, curve) in enumerate(zip(results, curves, strict=True))]
 
 
 def _label(name: str, unit: str | None) -> str:
@@ -326,6 +328,9 @@ class StudyRun:
         #: Finished curves: ``{id: summary-table row}``; their records stay in the journal,
         #: found by :attr:`_offsets` (so memory holds table rows only).
         self.done: dict[str, list[Any]] = {}
+        #: Curves that could not be fitted, with their one-line reasons: those the study
+        #: left out as read, then those refused by the fit (kept in the journal as well).
+        self.refused: dict[str, str] = dict(study.refused)
         self._offsets: dict[str, tuple[int, int]] = {}
         self._resume()
         #: Curves the journal held when this run began.
@@ -334,7 +339,8 @@ class StudyRun:
     @property
     def pending(self) -> list[int]:
         """Indices (study order) of the curves not fitted yet."""
-        return [i for i, name in enumerate(self.study.ids) if name not in self.done]
+        return [i for i, name in enumerate(self.study.ids)
+                if name not in self.done and name not in self.refused]
 
     def _resume(self) -> None:
         if not self.journal.exists():
@@ -367,7 +373,7 @@ class StudyRun:
             if row.get("curve") not in self.index:
                 raise ValueError(f"{self.journal}: curve {row.get('curve')!r} is not in the "
                                  "study")
-            if row["curve"] not in self.done:
+            if row["curve"] not in self.done and row["curve"] not in self.refused:
                 self._keep(row, offset, len(line))
             offset += len(line) + 1
         if kept < len(data):
@@ -375,6 +381,9 @@ class StudyRun:
                 stream.truncate(kept)
 
     def _keep(self, row: Mapping[str, Any], offset: int, size: int) -> None:
+        if "refused" in row["record"]:
+            self.refused[row["curve"]] = row["record"]["refused"]
+            return
         if self._columns is None:
             self._columns = _table_columns(row["record"], self.study.factors)
         _, names, extra = self._columns
@@ -420,6 +429,9 @@ class StudyRun:
         header = self._columns[0] if self._columns else ["curve", *self.study.factors]
         rows = [self.done[name] for name in sorted(self.done, key=self.index.__getitem__)]
         write_csv(self.folder / "summary.csv", header, rows)
+        if self.refused:
+            write_csv(self.folder / "refused.csv", ["curve", "reason"],
+                      [[name, reason] for name, reason in self.refused.items()])
 
     def write_summary(self) -> None:
         """Write ``summary.csv`` and ``summary.json`` (every finished curve's full record, in
@@ -427,8 +439,13 @@ class StudyRun:
         with self.lock:
             self._write_table()
             head = {"study": self.study.source, "model": self.plan.model,
-                    "factors": list(self.study.factors), "n_curves": len(self.study),
-                    "n_fitted": len(self.done), "complete": len(self.done) == len(self.study),
+                    "factors": list(self.study.factors),
+                    "n_curves": len(self.study) + len(self.study.refused),
+                    "n_fitted": len(self.done), "n_refused": len(self.refused),
+                    "complete": len(self.done) + len(self.refused)
+                    == len(self.study) + len(self.study.refused),
+                    "refused": [{"curve": name, "reason": reason}
+                                for name, reason in self.refused.items()],
                     "plan": self.plan.describe()}
 
             def fill(stream) -> None:

@@ -55,6 +55,9 @@ class Study:
     - `inlets`: per curve, its measured inlet signal (a :class:`~fitting.data.Curve`), or
       ``None`` for curves without one (then the study's inlet applies).
     - `source`: the long table, or the design table, the study was read from.
+    - `refused`: ``(curve id, reason)`` of each curve of the table that was left out because
+      it cannot be fitted as read (too few points, a gross negative value, times out of
+      order: the one-line reason names file, curve and row); the others are the study.
     """
 
     curves: tuple[Curve, ...]
@@ -62,6 +65,7 @@ class Study:
     levels: tuple[tuple[str, ...], ...]
     inlets: tuple[Curve | None, ...]
     source: str
+    refused: tuple[tuple[str, str], ...] = ()
 
     def __post_init__(self) -> None:
         count = len(self.curves)
@@ -198,22 +202,30 @@ def read_long_csv(
     numeric = [time_col.index, value_col.index] + ([inlet_col.index] if inlet_col else [])
     rows, data = table.numbers(numeric)
 
-    curves, inlets, levels = [], [], []
+    curves, inlets, levels, refused = [], [], [], []
     for key, positions in groups.items():
         index = np.asarray(positions)
-        curves.append(validated_curve(
-            path, rows[index], data[index, 0], data[index, 1], time_unit=time_unit,
-            value_unit=value_col.unit, name=key, normalise=False, on_truncated="ignore"))
-        if inlet_col is not None:
-            inlets.append(validated_curve(
+        # A curve that cannot be fitted as read is left out with its reason; the others
+        # make the study (a malformed file, above, is refused as a whole).
+        try:
+            curve = validated_curve(
+                path, rows[index], data[index, 0], data[index, 1], time_unit=time_unit,
+                value_unit=value_col.unit, name=key, normalise=False, on_truncated="ignore")
+            inlet = None if inlet_col is None else validated_curve(
                 path, rows[index], data[index, 0], data[index, 2], time_unit=time_unit,
                 value_unit=inlet_col.unit, name=f"{key} inlet", normalise=False,
-                min_points=2, on_truncated="ignore"))
-        else:
-            inlets.append(None)
+                min_points=2, on_truncated="ignore")
+        except DataError as error:
+            refused.append((key, str(error)))  # names file, row and curve
+            continue
+        curves.append(curve)
+        inlets.append(inlet)
         levels.append(tuple(first_seen[key][1]))
+    if not curves:
+        raise DataError(path, f"no curve can be fitted: {refused[0][1]}"
+                        + (f" (and {len(refused) - 1} more)" if len(refused) > 1 else ""))
     return Study(tuple(curves), tuple(f.label for f in factor_cols), tuple(levels),
-                 tuple(inlets), str(path))
+                 tuple(inlets), str(path), tuple(refused))
 
 
 def _wanted(table, wanted: str | int | None) -> str | int | None:
