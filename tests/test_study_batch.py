@@ -154,8 +154,6 @@ def test_design_table_errors_are_one_line(tmp_path, design, words):
      "study.csv:6: empty curve id in column 'run'"),
     (lambda lines: lines, ["--curve-column", "batch"],
      "study.csv:1: --curve-column: no column named 'batch'"),
-    (lambda lines: lines[:4] + [lines[2]] + lines[4:], [],
-     "study.csv:5: times not increasing"),
     (lambda lines: lines, ["--factors", "speed"],
      "study.csv:1: --factors: no column named 'speed'"),
 ])
@@ -171,6 +169,20 @@ def test_study_table_errors_name_file_row_and_column(tmp_path, capsys, edit, opt
     assert error.startswith("axialmix fit: error: ") and "\n" not in error
     assert words in error
     assert not out.exists()
+
+
+def test_a_curve_with_times_out_of_order_is_refused_and_the_others_fitted(tmp_path, capsys):
+    lines = _write_long(tmp_path / "study.csv").read_text().splitlines()
+    path = tmp_path / "study.csv"
+    path.write_text("\n".join(lines[:4] + [lines[2]] + lines[4:]) + "\n")
+    out = tmp_path / "out"
+    assert main(["fit", str(path), "--curve-column", "run", "--out", str(out)]) == 3
+    captured = capsys.readouterr()
+    (line,) = [x for x in captured.err.splitlines() if "refused" in x]
+    assert "curve 'r1'" in line and "study.csv, row 5: times not increasing" in line
+    summary = json.loads((out / "summary.json").read_text())
+    assert [r["curve"] for r in summary["refused"]] == ["r1"]
+    assert summary["n_fitted"] == summary["n_curves"] - 1 > 0
 
 
 def test_zero_weights_are_an_exact_mask():

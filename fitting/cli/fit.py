@@ -749,8 +749,9 @@ class _StudyExecution(_Supervised):
         rows = list(run.records())
         converged = sum(bool(r["converged"]) for r in rows)
         misfit = sum(bool((r.get("lack_of_fit") or {}).get("systematic")) for r in rows)
-        for reason in run.refused.values():
-            print(f"axialmix fit: refused {reason}", file=sys.stderr)
+        for name, reason in run.refused.items():
+            named = "" if repr(name) in reason else f"curve {name!r}: "
+            print(f"axialmix fit: refused {named}{reason}", file=sys.stderr)
         refused = (f"; {len(run.refused)} refused, listed in {self.out / 'refused.csv'} "
                    f"(exit status {REFUSED})" if run.refused else "")
         print(f"{len(rows)} curves: {converged} converged, {misfit} with systematic misfit; "
