@@ -95,7 +95,9 @@ def _read_study(path, curve_column: str, time_column: str | None, value_column: 
 
     study = read_long_csv(path, curve_column, time_column=time_column,
                           value_column=value_column, factors=factor_columns, decimal=decimal,
-                          factors_option="--law")
+                          factors_option="--law", leave_out=False)
+    if study.refused:  # one law over every curve: a curve left out would change the fit
+        raise ValueError(study.refused[0][1])
     factors = {}
     for j, name in enumerate(study.factors):
         column = []

@@ -124,6 +124,7 @@ def read_long_csv(
     factors: Sequence[str] | None = None,
     decimal: str = "auto",
     factors_option: str = "--factors",
+    leave_out: bool = True,
 ) -> Study:
     """Read a study from one long table: a curve-id column, samples, and factor columns.
 
@@ -216,6 +217,8 @@ def read_long_csv(
                 value_unit=inlet_col.unit, name=f"{key} inlet", normalise=False,
                 min_points=2, on_truncated="ignore")
         except DataError as error:
+            if not leave_out or len(groups) == 1:
+                raise
             refused.append((key, str(error)))  # names file, row and curve
             continue
         curves.append(curve)
