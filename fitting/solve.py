@@ -291,6 +291,8 @@ def user_cache_folder() -> Path:
     return Path(base) / "axialmix"
 
 
+#: Size bound of the compilation cache (bytes); the least recently used entries go first.
+COMPILATION_CACHE_BYTES = 2 * 1024**3
 #: Folder of exported programs once :func:`enable_compilation_cache` has run (``None``: off).
 _EXPORT_FOLDER: Path | None = None
 #: File-name ending of exported programs.
@@ -321,6 +323,11 @@ def enable_compilation_cache(folder: str | Path | None = None, exports: bool = T
     except OSError:  # no writable cache folder: run without one
         return folder
     jax.config.update("jax_compilation_cache_dir", str(folder))
+    # A bounded cache is also a locked one: JAX then reads and writes its entries under a
+    # file lock (filelock), so processes sharing the folder (a Dask pool, the test suite's
+    # workers, two fits at once) never read an entry another one is still writing; without
+    # a bound the entries are written in place, unlocked, and the folder grows for ever.
+    jax.config.update("jax_compilation_cache_max_size", COMPILATION_CACHE_BYTES)
     # Small programs too: a fit's solvers compile in well under the default one second.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
