@@ -9,6 +9,7 @@ writes it.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import tempfile
@@ -16,10 +17,12 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["write_atomic", "write_csv", "write_json", "write_text"]
+__all__ = ["csv_text", "default_mode", "json_text", "write_atomic", "write_csv", "write_json",
+           "write_text"]
 
 
-def _default_mode() -> int:
+def default_mode() -> int:
+    """The mode (permission bits) a new file gets under the process's umask."""
     umask = os.umask(0)
     os.umask(umask)
     return 0o666 & ~umask
@@ -44,7 +47,7 @@ def write_atomic(path: str | Path, write: Callable[[Any], None], binary: bool = 
         extra = {} if binary else {"newline": "", "encoding": "utf-8"}
         with os.fdopen(handle, mode, **extra) as stream:
             write(stream)
-        os.chmod(temporary, _default_mode())  # mkstemp makes the file private
+        os.chmod(temporary, default_mode())  # mkstemp makes the file private
         os.replace(temporary, path)
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
@@ -57,18 +60,26 @@ def write_text(path: str | Path, text: str) -> Path:
     return write_atomic(path, lambda stream: stream.write(text))
 
 
+def json_text(data: Mapping[str, Any]) -> str:
+    """`data` as the text of every JSON result file: indented, no NaN or infinity (JSON has
+    none; raises ValueError)."""
+    return json.dumps(data, indent=2, allow_nan=False) + "\n"
+
+
+def csv_text(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """A CSV table with one header line, as text."""
+    stream = io.StringIO(newline="")
+    writer = csv.writer(stream)
+    writer.writerow(header)
+    writer.writerows(rows)
+    return stream.getvalue()
+
+
 def write_json(path: str | Path, data: Mapping[str, Any]) -> Path:
     """Write `data` as indented JSON (no NaN or infinity: JSON has none), atomically."""
-    text = json.dumps(data, indent=2, allow_nan=False) + "\n"
-    return write_text(path, text)
+    return write_text(path, json_text(data))
 
 
 def write_csv(path: str | Path, header: Sequence[str], rows: Sequence[Sequence[Any]]) -> Path:
     """Write a CSV table with one header line, atomically (see :func:`write_atomic`)."""
-
-    def fill(stream) -> None:
-        writer = csv.writer(stream)
-        writer.writerow(header)
-        writer.writerows(rows)
-
-    return write_atomic(path, fill)
+    return write_text(path, csv_text(header, rows))

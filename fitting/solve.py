@@ -328,11 +328,28 @@ def enable_compilation_cache(folder: str | Path | None = None, exports: bool = T
     # workers, two fits at once) never read an entry another one is still writing; without
     # a bound the entries are written in place, unlocked, and the folder grows for ever.
     jax.config.update("jax_compilation_cache_max_size", COMPILATION_CACHE_BYTES)
+    _date_unbounded_entries(folder)
     # Small programs too: a fit's solvers compile in well under the default one second.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     _EXPORT_FOLDER = user_cache_folder() / "solvers" if exports else None
     return folder
+
+
+def _date_unbounded_entries(folder: Path) -> None:
+    """Give every entry of a cache folder written without a bound its access-time file.
+
+    A bounded JAX cache ranks its entries by access-time files (``<key>-atime``) that an
+    unbounded one does not write; one entry without its file makes every later write fail.
+    Entries are dated by their modification time, so they are evicted oldest first.
+    """
+    try:
+        for entry in folder.glob("*-cache"):
+            stamp = entry.with_name(entry.name[: -len("cache")] + "atime")
+            if not stamp.exists():
+                stamp.write_bytes(entry.stat().st_mtime_ns.to_bytes(8, "little"))
+    except OSError:  # a folder we cannot write: JAX then reports each failed write itself
+        pass
 
 
 def padded_length(size: int) -> int:

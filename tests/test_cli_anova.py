@@ -16,14 +16,14 @@ TABLES = Path(__file__).resolve().parents[1] / "examples" / "source_tables"
 
 
 def test_source_table_through_the_command_line_is_the_library_s_anova(tmp_path, capsys):
-    out = tmp_path / "anova.json"
+    out = tmp_path / "res"
     table = TABLES / "mixer1_residence.csv"
     status = main(["anova", str(table), "--response", "residence_time_s", "--factors",
-                   "angle,rpm", "--interactions", "2", "--json", str(out)])
+                   "angle,rpm", "--interactions", "2", "--out", str(out)])
     assert status == 0
     printed = capsys.readouterr().out
     assert printed.startswith("ANOVA of residence_time_s") and "balanced design" in printed
-    written = json.loads(out.read_text())
+    written = json.loads((out / "anova.json").read_text())
     frame = pd.read_csv(table, comment="#")
     expected = anova(frame, "residence_time_s", ["angle", "rpm"], interactions=2)
     assert [s["source"] for s in written["sources"]] == ["angle", "rpm", "angle:rpm", "error"]
@@ -36,14 +36,14 @@ def test_source_table_through_the_command_line_is_the_library_s_anova(tmp_path, 
 
 def test_log_analyses_the_logarithm_of_the_response(tmp_path, capsys):
     table = TABLES / "mixer1_residence.csv"
-    out = tmp_path / "anova.json"
+    out = tmp_path / "res"
     assert main(["anova", str(table), "--response", "residence_time_s", "--factors",
-                 "angle,rpm", "--log", "--json", str(out)]) == 0
+                 "angle,rpm", "--log", "--out", str(out)]) == 0
     assert capsys.readouterr().out.startswith("ANOVA of ln(residence_time_s)")
     frame = pd.read_csv(table, comment="#")
     frame["logged"] = frame["residence_time_s"].map(math.log)
     expected = anova(frame, "logged", ["angle", "rpm"])
-    written = {s["source"]: s for s in json.loads(out.read_text())["sources"]}
+    written = {s["source"]: s for s in json.loads((out / "anova.json").read_text())["sources"]}
     for source in ("angle", "rpm", "error"):
         assert written[source]["ss"] == pytest.approx(expected.source(source).ss, rel=1e-12)
 
@@ -58,10 +58,10 @@ def test_bad_tables_are_refused_in_one_line_and_nothing_is_written(tmp_path, cap
                                                                     options, words):
     table = tmp_path / "bad.csv"
     table.write_text("\n".join(rows) + "\n")
-    out = tmp_path / "anova.json"
+    out = tmp_path / "res"
     factors = [] if "--factors" in options else ["--factors", "a,b"]
     status = main(["anova", str(table), "--response", "y", *factors, *options,
-                   "--json", str(out)])
+                   "--out", str(out)])
     error = capsys.readouterr().err.strip()
     assert status == 2 and not out.exists(), error
     assert words in error and "\n" not in error

@@ -86,14 +86,14 @@ def _case_divert_unidentified_fit(tmp):
                       {"k_f": 0.91, "k_r": 1.08, "k_s": 1.01, "k_out": 0.8},
                       {"k_f": 12767.0, "k_r": 15625.0, "k_s": 14166.0, "k_out": 0.01})
     return (["divert", "--model", str(fit), "--disturbance",
-             "square:magnitude=20,duration=3,start=1", "--flow", "30", "--json",
-             str(tmp / "d.json")], "of 1000 samples")
+             "square:magnitude=20,duration=3,start=1", "--flow", "30", "--out",
+             str(tmp / "dout")], "of 1000 samples")
 
 
 def _case_divert_huge_stderr(tmp):
     fit = _fit_record(tmp / "wide.json", errors={"tau": 1e10, "peclet": 1.0})
     return (["divert", "--model", str(fit), "--disturbance",
-             "square:magnitude=20,duration=3,start=1", "--json", str(tmp / "d.json")],
+             "square:magnitude=20,duration=3,start=1", "--out", str(tmp / "dout")],
             "of 1000 samples")
 
 
@@ -112,7 +112,7 @@ def _case_divert_huge_points(tmp):
 def _case_divert_tau_1e308(tmp):
     fit = _fit_record(tmp / "huge.json", values={"tau": 1e308, "peclet": 20.0})
     return (["divert", "--model", str(fit), "--disturbance",
-             "square:magnitude=20,duration=3,start=1", "--json", str(tmp / "d.json")], "tau")
+             "square:magnitude=20,duration=3,start=1", "--out", str(tmp / "dout")], "tau")
 
 
 def _case_divert_bad_correlation_shape(tmp):
@@ -146,7 +146,7 @@ def _case_funnel_bad_time_unit(tmp):
 
 def _case_funnel_peclet_1e308(tmp):
     return (["funnel", "--model", "adm", "--set", "tau=7", "--set", "peclet=1e308",
-             "--durations", "1,5", "--magnitudes", "5", "--json", str(tmp / "f.json")],
+             "--durations", "1,5", "--magnitudes", "5", "--out", str(tmp / "fout")],
             "peclet")
 
 
@@ -213,27 +213,27 @@ def _case_anova_huge_response(tmp):
     path = tmp / "t.csv"
     rows = ["a,b,y"] + [f"{i % 2},{i % 3},{1e308 if i == 0 else 1.0 + i}" for i in range(12)]
     path.write_text("\n".join(rows) + "\n")
-    return (["anova", str(path), "--response", "y", "--factors", "a,b", "--json",
-             str(tmp / "a.json")], "t.csv")
+    return (["anova", str(path), "--response", "y", "--factors", "a,b", "--out",
+             str(tmp / "aout")], "t.csv")
 
 
 def _case_anova_denormal_response(tmp):
     path = tmp / "t.csv"
     rows = ["a,b,y"] + [f"{i % 2},{i % 3},{(1 + i) * 1e-320:.3e}" for i in range(12)]
     path.write_text("\n".join(rows) + "\n")
-    return (["anova", str(path), "--response", "y", "--factors", "a,b", "--json",
-             str(tmp / "a.json")], "t.csv")
+    return (["anova", str(path), "--response", "y", "--factors", "a,b", "--out",
+             str(tmp / "aout")], "t.csv")
 
 
 def _case_global_fit_value_is_factor(tmp):
     return (["global-fit", str(_long_study(tmp / "s.csv")), "--curve-column", "run",
-             "--value-column", "speed", "--law", "log(peclet)=speed", "--json",
-             str(tmp / "g.json")], "--value-column")
+             "--value-column", "speed", "--law", "log(peclet)=speed", "--out",
+             str(tmp / "gout")], "--value-column")
 
 
 def _case_global_fit_law_unknown_column(tmp):
     return (["global-fit", str(_long_study(tmp / "s.csv")), "--curve-column", "run",
-             "--law", "log(peclet)=nosuch", "--json", str(tmp / "g.json")], "--law")
+             "--law", "log(peclet)=nosuch", "--out", str(tmp / "gout")], "--law")
 
 
 def _case_simulate_sample_size(tmp):
@@ -265,13 +265,13 @@ def test_negative_limits_in_the_documented_form_are_accepted(capsys):
 
 
 def test_divert_scan_is_not_cut_by_until(tmp_path, capsys):
-    out = tmp_path / "d.json"
+    out = tmp_path / "d"
     status = main(["divert", "--model", "adm", "--set", "tau=60", "--set", "peclet=20",
                    "--disturbance", "square:magnitude=20,duration=30,start=10", "--until",
-                   "50", "--json", str(out)])
+                   "50", "--out", str(out)])
     capsys.readouterr()
     assert status == 0
-    record = json.loads(out.read_text())
+    record = json.loads((out / "divert.json").read_text())
     assert record["nominal"]["diverts"]
     assert record["nominal"]["start"] == pytest.approx(56.7, abs=0.05)
     assert record["scan"]["end"] > 50

@@ -63,13 +63,15 @@ def _fit_record(tmp_path, model="adm", values=None, time_unit="min", data="run 7
 
 
 def test_funnel_command_of_a_stirred_tank_is_its_closed_form(tmp_path, capsys):
-    out, png = tmp_path / "funnel.json", tmp_path / "funnel.png"
+    folder = tmp_path / "res"
+    out, png = folder / "funnel.json", folder / "funnel.png"
     status, text, _ = _run(["funnel", "--model", "tanks", "--set", f"tau={TAU}", "--set",
                             "n_tanks=1", "--time-unit", "min", "--durations", "1,5,20",
-                            "--magnitudes", "5,-10", "--json", str(out), "--png", str(png)],
-                           capsys)
+                            "--magnitudes", "5,-10", "--out", str(folder)], capsys)
     assert status == 0
     assert "rows magnitudes" in text
+    assert sorted(p.name for p in folder.iterdir()) == [".axialmix-funnel", "funnel.json",
+                                                         "funnel.png"]
     record = json.loads(out.read_text())
     durations, magnitudes = np.array([1.0, 5.0, 20.0]), np.array([5.0, -10.0])
     expected = magnitudes[:, None] * -np.expm1(-durations / TAU)[None, :]
@@ -85,11 +87,11 @@ def test_funnel_command_from_a_fit_uses_its_values_and_time_unit(tmp_path, capsy
     # The same compiled funnel as above (tanks in minutes, labelled "tanks", three durations,
     # two magnitudes).
     path, _ = _fit_record(tmp_path, "tanks", {"tau": 4.0, "n_tanks": 1.0}, data="tanks")
-    out = tmp_path / "funnel.json"
+    out = tmp_path / "res"
     status, _, _ = _run(["funnel", "--model", str(path), "--durations", "0.5,3,9",
-                         "--magnitudes", "10,1", "--json", str(out)], capsys)
+                         "--magnitudes", "10,1", "--out", str(out)], capsys)
     assert status == 0
-    record = json.loads(out.read_text())
+    record = json.loads((out / "funnel.json").read_text())
     durations = np.array([0.5, 3.0, 9.0])
     np.testing.assert_allclose(record["max_deviation"][0], 10 * -np.expm1(-durations / 4.0),
                                rtol=1e-12)
@@ -159,14 +161,15 @@ def _open_open_window(tau, peclet, magnitude, duration, start, delta):
 
 def test_divert_command_from_a_fit_is_exact_and_samples_its_covariance(tmp_path, capsys):
     path, _ = _fit_record(tmp_path, "adm-open", {"tau": TAU, "peclet": 20.0}, time_unit="s")
-    out = tmp_path / "divert.json"
+    out = tmp_path / "res"
     status, text, _ = _run(["divert", "--model", str(path), "--disturbance",
                             "square:magnitude=20,duration=15,start=5", "--flow", "36",
                             "--points", "301", "--samples", "16", "--coverage", "0.9",
-                            "--seed", "3", "--json", str(out)], capsys)
+                            "--seed", "3", "--out", str(out)], capsys)
     assert status == 0
     assert "conservative (90%" in text
-    record = json.loads(out.read_text())
+    assert (out / "divert.png").read_bytes()[:4] == b"\x89PNG"
+    record = json.loads((out / "divert.json").read_text())
     start, stop = _open_open_window(TAU, 20.0, 20.0, 15.0, 5.0, 5.0)
     nominal = record["nominal"]
     assert nominal["start"] == pytest.approx(start, rel=1e-10)
@@ -200,15 +203,15 @@ def test_divert_command_reads_a_feeder_trace(tmp_path, capsys):
     # the tanks' ramp response, whose incomplete gamma function is costly: a study.)
     trace = tmp_path / "feeder.csv"
     trace.write_text("time (s),content (%)\n0,100\n10,100\n20,120\n60,120\n")
-    out = tmp_path / "divert.json"
+    out = tmp_path / "res"
     status, _, _ = _run(["divert", "--model", "tanks", "--set", "tau=5", "--set", "n_tanks=3",
                          "--trace", str(trace), "--until", "60", "--points", "241",
-                         "--json", str(out)], capsys)
+                         "--out", str(out)], capsys)
     assert status == 0
     window = diversion_window(Unit.tanks(5.0, 3.0), Disturbance.ramp(20.0, 10.0, 10.0),
                               np.linspace(0.0, 60.0, 241), target=100.0, lower=95.0,
                               upper=105.0)
-    record = json.loads(out.read_text())
+    record = json.loads((out / "divert.json").read_text())
     assert record["nominal"]["start"] == pytest.approx(float(window.start), rel=1e-12)
     assert record["nominal"]["stop"] == "inf"
     assert record["disturbance"] == {"kind": "trace", "file": str(trace), "samples": 4}
@@ -256,9 +259,9 @@ def test_bad_input_exits_2_on_one_line_and_writes_nothing(argv, words, tmp_path,
     trace.write_text("time,content\n0,100\n5,101\n5,102\n")
     minutes = tmp_path / "minutes.csv"
     minutes.write_text("time (min),content (%)\n0,100\n5,101\n")
-    out = tmp_path / "out.json"
+    out = tmp_path / "out"
     argv = [a.format(fit=fit, network=network, trace=trace, minutes=minutes) for a in argv] + [
-        "--json", str(out)]
+        "--out", str(out)]
     status, _, err = _run(argv, capsys)
     assert status == 2
     lines = err.strip().splitlines()

@@ -46,3 +46,25 @@ def test_processes_sharing_the_cache_agree_and_the_cache_is_locked(tmp_path):
     entries = [p for p in folder.iterdir() if p.name.endswith("-cache")]
     assert len(entries) >= 12
     assert (folder / ".lockfile").exists()  # the bounded cache takes its file lock
+
+
+def test_a_cache_written_without_a_bound_is_taken_over(tmp_path):
+    # An older cache folder: entries without access-time files (JAX's unbounded cache).
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "home")}
+    folder = tmp_path / "jax"
+    old = subprocess.run([sys.executable, "-c", textwrap.dedent(f"""
+        import jax, jax.numpy as jnp
+        jax.config.update("jax_compilation_cache_dir", {str(folder)!r})
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+        print(float(jax.jit(lambda x: jnp.sum(jnp.exp(x)))(jnp.ones(5))))
+    """)], capture_output=True, text=True, env=env, timeout=300)
+    assert old.returncode == 0, old.stderr
+    assert not list(folder.glob("*-atime"))
+    new = _run(folder, 3, env)
+    _, err = new.communicate(timeout=300)
+    assert new.returncode == 0, err
+    assert "Error writing persistent compilation cache" not in err, err
+    entries = list(folder.glob("*-cache"))
+    assert len(entries) >= 4 and all(e.with_name(e.name[:-5] + "atime").exists()
+                                     for e in entries)

@@ -237,11 +237,12 @@ def write_long_table(path, curves, factors):
 def test_global_fit_command_reads_a_long_table_and_gives_the_same_law(study, tmp_path, capsys):
     curves, factors, _, result = study
     table = write_long_table(tmp_path / "study.csv", curves, factors)
-    out, rows = tmp_path / "global.json", tmp_path / "curves.csv"
+    folder = tmp_path / "res"
+    out, rows = folder / "global-fit.json", folder / "curves.csv"
     status = main(["global-fit", str(table), "--weights", "per-curve",
                    "--curve-column", "run", "--time-column", "time",
                    "--value-column", "conc", "--law", "log(peclet)=speed+flow",
-                   "--json", str(out), "--csv", str(rows)])
+                   "--out", str(folder)])
     assert status == 0
     printed = capsys.readouterr().out
     assert "two-stage regression" in printed and "peclet:speed" in printed
@@ -283,9 +284,9 @@ def test_global_fit_command_refuses_bad_input_in_one_line(tmp_path, capsys, rows
                                                           words):
     table = tmp_path / "bad.csv"
     table.write_text("\n".join(rows) + "\n")
-    out = tmp_path / "out.json"
+    out = tmp_path / "out"
     status = main(["global-fit", str(table), "--curve-column", "run", *options,
-                   "--json", str(out)])
+                   "--out", str(out)])
     error = capsys.readouterr().err.strip()
     assert status == 2 and not out.exists()
     assert words in error and "\n" not in error

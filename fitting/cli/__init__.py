@@ -23,6 +23,7 @@ import threading
 from types import ModuleType
 
 from fitting import drawing
+from fitting.cli import _outputs
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
@@ -137,6 +138,21 @@ class _Parser(argparse.ArgumentParser):
         raise _UsageError(message)
 
 
+def _version() -> str:
+    """The installed package's version (from its metadata: importing axialmix loads JAX)."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("axialmix")
+    except metadata.PackageNotFoundError:  # run from a source tree that is not installed
+        return "unknown (not installed)"
+
+
+def _add_version(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--version", action="version", version=f"axialmix {_version()}",
+                        help="print the version and exit")
+
+
 def _command(name: str) -> ModuleType:
     """The module of sub-command `name` (imported now, not before)."""
     return importlib.import_module(COMMANDS[name][0])
@@ -156,6 +172,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         prog="axialmix",
         description="Residence-time models of continuous powder mixers.",
     )
+    _add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="{" + ",".join(COMMANDS)
                                 + "}")
     for name, (_, help_line) in COMMANDS.items():
@@ -233,6 +250,7 @@ def main(argv: list[str] | None = None) -> int:
         drawing.start_worker()
     in_main = threading.current_thread() is threading.main_thread()
     guard = _InterruptGuard(command) if in_main else None
+    _outputs.register_guard(guard)
     status = 1  # axialmix._exits.FAILED: an exception (a bug) is on its way out
     try:
         parser = build_parser(command) if command is not None else _listing_parser()
@@ -256,6 +274,7 @@ def main(argv: list[str] | None = None) -> int:
             guard.finish(status)
         elif guard is not None:
             guard.close()
+            _outputs.register_guard(None)
         if program and sys.exc_info()[0] is None:
             _end_process(status)
 
@@ -264,6 +283,7 @@ def _listing_parser() -> argparse.ArgumentParser:
     """The parser without any sub-command built: for ``axialmix --help`` and bad commands."""
     parser = _Parser(prog="axialmix",
                      description="Residence-time models of continuous powder mixers.")
+    _add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True,
                                 metavar="{" + ",".join(COMMANDS) + "}")
     for name, (_, help_line) in COMMANDS.items():

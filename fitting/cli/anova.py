@@ -1,9 +1,10 @@
 """``axialmix anova``: analysis of variance of one column of a study table over its factors.
 
-``axialmix anova TABLE.csv --response NAME --factors A,B[,C] --interactions N --json OUT``
+``axialmix anova TABLE.csv --response NAME --factors A,B[,C] --interactions N --out DIR``
 reads a table with one row per run (``#`` comment lines allowed, a header row naming the
-columns), prints the ANOVA table and writes it as JSON ``{"sources": [{"source", "df", "ss",
-"ms", "F", "p"}, ..., {"source": "error", ...}], ...}``; interaction sources are named like
+columns) and prints the ANOVA table; ``--out DIR`` writes it as ``DIR/anova.json``
+``{"sources": [{"source", "df", "ss", "ms", "F", "p"}, ..., {"source": "error", ...}], ...}``
+and ``DIR/anova.csv`` (one row per source), all or nothing; interaction sources are named like
 ``A:B``. Unbalanced designs use type II sums of squares unless ``--ss-type`` says otherwise,
 and the output says which. Exit status: 0 done, 2 bad input (one line, nothing written).
 """
@@ -11,11 +12,14 @@ and the output says which. Exit status: 0 done, 2 bad input (one line, nothing w
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+
+from fitting.cli._outputs import OutputError, OutputFolder, add_out_option
 
 __all__ = ["add_parser", "run"]
 
 _COMMAND = "anova"
+#: The result set of ``axialmix anova --out DIR``.
+FILES = ("anova.json", "anova.csv")
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -41,7 +45,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--log", action="store_true",
                         help="analyse the natural logarithm of the response (positive values; "
                              "for responses such as Pe whose factor effects multiply)")
-    parser.add_argument("--json", metavar="OUT", help="write the table as JSON to OUT")
+    add_out_option(parser, "anova.json and the table anova.csv", replaced=("--json",))
     return parser
 
 
@@ -97,16 +101,17 @@ def run(args: argparse.Namespace) -> int:
     """Run ``axialmix anova`` with parsed `args`; returns the exit status."""
     from axialmix import _exits
     from axialmix._csv import DataError
-    from axialmix._files import write_json
+    from axialmix._files import csv_text, json_text
     from fitting.study import anova, read_study_table
 
     factors = _names(args.factors)
     if not factors:
         return _exits.error_line(_COMMAND, "--factors names no column")
-    if args.json is not None:
-        folder = Path(args.json).resolve().parent
-        if not folder.is_dir():
-            return _exits.error_line(_COMMAND, f"--json: folder {folder} does not exist")
+    out = OutputFolder(_COMMAND, args.out, FILES, inputs=[args.table])
+    try:
+        out.check()
+    except OutputError as error:
+        return _exits.error_line(_COMMAND, str(error))
     try:
         table = read_study_table(args.table, [args.response, *factors])
         _check_response(table, args.response)
@@ -125,6 +130,9 @@ def run(args: argparse.Namespace) -> int:
         return _exits.error_line(_COMMAND, f"{args.table}: the result {where} is not a finite "
                                  "number; nothing written")
     print(result.report())
-    if args.json is not None:
-        write_json(args.json, record)
+    columns = ("source", "df", "ss", "ms", "F", "p")
+    rows = [[row.get(c) for c in columns] for row in record["sources"]]
+    for path in out.commit({"anova.json": json_text(record),
+                            "anova.csv": csv_text(columns, rows)}):
+        print(f"wrote {path}")
     return _exits.OK

@@ -5,7 +5,7 @@
                     [--target 100] [--limits -5,5] [--absolute-limits] [--content-unit %]
                     [--flow KG_PER_H] [--until T] [--points N]
                     [--coverage 0.95] [--samples N] [--method region|quantile] [--seed N]
-                    [--json OUT] [--png OUT]
+                    [--out DIR]
 
 The outlet content is ``target + E ⊗ δu`` for the inlet deviation δu; diversion starts when
 it first leaves the specification limits and stops when it last returns
@@ -32,7 +32,10 @@ one line with the nominal window) rather than made of the samples that worked. T
 to ``--until`` at least and continues, at the same spacing, until the disturbance's effect has
 settled, so no window is cut by it. ``--points`` and ``--samples`` are bounded (1,000,000
 each, and the library's bound on model evaluations and memory), refused up front with the
-estimate. Exit status: 0 done, 2 bad input (one line, nothing written).
+estimate. ``--out DIR`` writes ``DIR/divert.json`` and the plot ``DIR/divert.png`` as one
+result set (all or nothing, :mod:`fitting.cli._outputs`); without it nothing is written.
+Exit status: 0 done, 2 bad input (one line, nothing written), 130 interrupted (the line says
+whether the result set is complete or nothing was written).
 """
 
 from __future__ import annotations
@@ -41,19 +44,21 @@ import argparse
 import math
 import re
 
+from fitting.cli._outputs import OutputError, OutputFolder, add_out_option, render_png
 from fitting.cli.funnel import (
     OptionError,
     add_model_options,
-    check_output,
+    model_inputs,
     numbers,
     require_finite_record,
     rtd_from_options,
-    write_plot_png,
 )
 
 __all__ = ["DISTURBANCES", "add_parser", "run"]
 
 _COMMAND = "divert"
+#: The result set of ``axialmix divert --out DIR``.
+FILES = ("divert.json", "divert.png")
 
 #: Disturbance kind -> (required keys, optional keys with defaults).
 DISTURBANCES = {
@@ -111,8 +116,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="conservative window over the confidence region (default, "
                         "guaranteed) or from quantiles of the sampled windows")
     parser.add_argument("--seed", type=int, default=0, help="random seed of the sampling")
-    parser.add_argument("--json", metavar="OUT", help="write the windows as JSON to OUT")
-    parser.add_argument("--png", metavar="OUT", help="draw the outlet and the windows to OUT")
+    add_out_option(parser, "divert.json and divert.png", replaced=("--json", "--png"))
     return parser
 
 
@@ -206,8 +210,7 @@ def _check(args) -> None:
         raise OptionError("--until must be a finite number")
     if not 0 <= args.seed < 2**31:
         raise OptionError("--seed must be a whole number from 0 to 2**31 - 1")
-    check_output("--json", args.json)
-    check_output("--png", args.png)
+    OutputFolder(_COMMAND, args.out, FILES, inputs=[*model_inputs(args), args.trace]).check()
 
 
 def _describe(window, time_unit: str, amount: str) -> str:
@@ -242,12 +245,13 @@ def run(args: argparse.Namespace) -> int:
                 seconds = seconds_per(fitted.time_unit)
             except ValueError as error:
                 raise OptionError(f"--flow: {error}") from None
-    except OptionError as error:
+    except (OptionError, OutputError) as error:
         return _exits.error_line(_COMMAND, str(error))
+    out = OutputFolder(_COMMAND, args.out, FILES, inputs=[*model_inputs(args), args.trace])
 
     import numpy as np
 
-    from axialmix._files import write_json
+    from axialmix._files import json_text
     from axialmix.line import Disturbance, conservative_diversion_window, diversion_window
     from fitting.solve import enable_compilation_cache
 
@@ -346,37 +350,37 @@ def run(args: argparse.Namespace) -> int:
               + _describe(conservative, time_unit, amount_unit))
     elif not fitted.free:
         print("no conservative window: the RTD has no covariance (give a fit's JSON file)")
-    if args.json is not None:
-        record = {
-            **description,
-            "disturbance": disturbance_record,
-            "content_unit": content_unit,
-            "target": args.target,
-            "lower": lower,
-            "upper": upper,
-            "flow": None if args.flow is None else {"value": args.flow, "unit": "kg/h"},
-            "scan": {"start": begin, "end": scan_end, "points": int(nominal.times.shape[0]),
-                     "requested_end": until},
-            "nominal": nominal.to_dict(),
-            "conservative": None,
-        }
-        if conservative is not None:
-            summary = conservative.to_dict()
-            record["conservative"] = {**summary["conservative"],
-                                      **{k: summary[k] for k in ("coverage", "method",
-                                                                 "samples", "valid_samples",
-                                                                 "failed_samples",
-                                                                 "scan_end",
-                                                                 "diverting_fraction")},
-                                      "scale": scale, "seed": args.seed}
-        try:
-            require_finite_record(record)
-        except OptionError as error:
-            return _exits.error_line(_COMMAND, f"{source}: {error}")
-        write_json(args.json, record)
-    if args.png is not None:
-        from axialmix.line import plot_diversion
+    if args.out is None:
+        return _exits.OK
+    record = {
+        **description,
+        "disturbance": disturbance_record,
+        "content_unit": content_unit,
+        "target": args.target,
+        "lower": lower,
+        "upper": upper,
+        "flow": None if args.flow is None else {"value": args.flow, "unit": "kg/h"},
+        "scan": {"start": begin, "end": scan_end, "points": int(nominal.times.shape[0]),
+                 "requested_end": until},
+        "nominal": nominal.to_dict(),
+        "conservative": None,
+    }
+    if conservative is not None:
+        summary = conservative.to_dict()
+        record["conservative"] = {**summary["conservative"],
+                                  **{k: summary[k] for k in ("coverage", "method", "samples",
+                                                             "valid_samples", "failed_samples",
+                                                             "scan_end", "diverting_fraction",
+                                                             "sample_table") if k in summary},
+                                  "scale": scale, "seed": args.seed}
+    try:
+        require_finite_record(record)
+    except OptionError as error:
+        return _exits.error_line(_COMMAND, f"{source}: {error}")
+    from axialmix.line import plot_diversion
 
-        window = conservative if conservative is not None else nominal
-        write_plot_png(args.png, lambda ax: plot_diversion(window, ax=ax), (7, 4))
+    window = conservative if conservative is not None else nominal
+    png = render_png(lambda ax: plot_diversion(window, ax=ax), (7, 4))
+    for path in out.commit({"divert.json": json_text(record), "divert.png": png}):
+        print(f"wrote {path}")
     return _exits.OK

@@ -107,6 +107,7 @@ from pathlib import Path
 from typing import Any
 
 from axialmix._exits import BAD_INPUT, INTERRUPTED, OK, REFUSED, error_line
+from fitting.cli._outputs import OutputError, refuse_other_results
 
 __all__ = ["add_parser", "run"]
 
@@ -405,6 +406,10 @@ def _check_out(out: Path) -> None:
             raise InputError(f"{out}: --out exists and is not a folder")
         if not os.access(out, os.W_OK | os.X_OK):
             raise InputError(f"{out}: --out is not writable")
+        try:
+            refuse_other_results(out, "fit")
+        except OutputError as error:
+            raise InputError(str(error)) from None
         return
     parent = out.parent
     while not parent.exists():

@@ -2,7 +2,7 @@
 
     axialmix funnel --model M [--set NAME=VALUE ...] [--time-unit s]
                     --durations D1,D2,... --magnitudes M1,M2,... [--magnitude-unit %]
-                    [--json OUT] [--png OUT]
+                    [--out DIR]
 
 For every square inlet disturbance of magnitude M and duration D, the largest deviation it
 causes at the outlet, ``M max_t [F(t) - F(t - D)]`` (:func:`axialmix.line.funnel`, exact and
@@ -12,8 +12,11 @@ closed-closed ADM, evaluated exactly) with every parameter given by ``--set NAME
 ``--time-unit``, or the JSON file of a fit that ``axialmix fit`` wrote (its values and its
 time unit; ``--set`` then overrides values). The table printed and the JSON key
 ``"max_deviation"`` have one row per magnitude and one column per duration; the JSON states
-the durations, magnitudes and their units. Exit status: 0 done, 2 bad input (one line,
-nothing written).
+the durations, magnitudes and their units. ``--out DIR`` writes
+``DIR/funnel.json`` and the plot ``DIR/funnel.png`` as one result set (all or nothing; see
+:mod:`fitting.cli._outputs`); without it nothing is written. Exit status: 0 done, 2 bad input
+(one line, nothing written), 130 interrupted (the line says whether the result set is
+complete or nothing was written).
 
 This module is also the adapter from fit results to :mod:`axialmix.line` units (used by
 ``axialmix divert``): :func:`fitted_rtd` reads a fit's JSON record into an
@@ -29,21 +32,25 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from fitting.cli._outputs import OutputError, OutputFolder, add_out_option, render_png
+
 __all__ = [
     "LINE_MODELS",
     "OptionError",
     "add_model_options",
     "add_parser",
-    "check_output",
+    "model_inputs",
     "fitted_rtd",
     "numbers",
     "require_finite_record",
     "rtd_from_options",
     "run",
-    "write_plot_png",
 ]
 
 _COMMAND = "funnel"
+
+#: The result set of ``axialmix funnel --out DIR``.
+FILES = ("funnel.json", "funnel.png")
 
 #: ``axialmix fit`` model names -> :data:`axialmix.line.UNIT_BUILDERS` names. ``adm-fv`` fits
 #: the closed-closed ADM by finite volumes; its unit is the exact closed-closed one.
@@ -93,8 +100,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--limit", type=float, default=5.0,
                         help="the specification: the largest outlet deviation allowed "
                         "(magnitude unit, default 5); the plot draws where it is reached")
-    parser.add_argument("--json", metavar="OUT", help="write the funnel as JSON to OUT")
-    parser.add_argument("--png", metavar="OUT", help="draw the funnel plot to OUT (PNG)")
+    add_out_option(parser, "funnel.json and funnel.png", replaced=("--json", "--png"))
     return parser
 
 
@@ -323,15 +329,6 @@ def _check_ranges(fitted, source: str, overrides: Mapping[str, float]) -> None:
                               "are not verified there")
 
 
-def check_output(option: str, path: str | None) -> None:
-    """:class:`OptionError` unless the folder of output `path` exists."""
-    if path is None:
-        return
-    folder = Path(path).resolve().parent
-    if not folder.is_dir():
-        raise OptionError(f"{option}: folder {folder} does not exist")
-
-
 def _table(result) -> str:
     durations = [f"{d:g}" for d in result.durations.tolist()]
     header = [f"M ({result.magnitude_unit}) \\ D ({result.time_unit})", *durations]
@@ -355,15 +352,15 @@ def run(args: argparse.Namespace) -> int:
             raise OptionError("--durations must be positive")
         if not (math.isfinite(args.limit) and args.limit > 0):
             raise OptionError(f"--limit must be a positive number, got {args.limit:g}")
-        check_output("--json", args.json)
-        check_output("--png", args.png)
+        out = OutputFolder(_COMMAND, args.out, FILES, inputs=model_inputs(args))
+        out.check()
         fitted, description = rtd_from_options(args)
-    except OptionError as error:
+    except (OptionError, OutputError) as error:
         return _exits.error_line(_COMMAND, str(error))
 
     import numpy as np
 
-    from axialmix._files import write_json
+    from axialmix._files import json_text
     from axialmix.line import funnel
     from fitting.solve import enable_compilation_cache
 
@@ -381,45 +378,30 @@ def run(args: argparse.Namespace) -> int:
           f"{float(unit.mean()):.4g} {unit.time_unit}: largest outlet deviation, rows "
           f"magnitudes, columns durations")
     print(_table(result))
-    if args.json is not None:
-        record = {
-            **description,
-            "mean_residence_time": float(unit.mean()),
-            **result.to_dict(),
-            "rows": "magnitudes",
-            "columns": "durations",
-        }
-        try:
-            require_finite_record(record)
-        except OptionError as error:
-            return _exits.error_line(_COMMAND, f"{values}: {error}")
-        write_json(args.json, record)
-    if args.png is not None:
-        from axialmix.line import plot_funnel
+    if args.out is None:
+        return _exits.OK
+    record = {
+        **description,
+        "mean_residence_time": float(unit.mean()),
+        **result.to_dict(),
+        "rows": "magnitudes",
+        "columns": "durations",
+    }
+    try:
+        require_finite_record(record)
+    except OptionError as error:
+        return _exits.error_line(_COMMAND, f"{values}: {error}")
+    from axialmix.line import plot_funnel
 
-        title = (f"Funnel of {description['model']}: largest outlet deviation "
-                 f"({args.magnitude_unit})")
-        write_plot_png(args.png, lambda ax: plot_funnel(result, ax=ax, rtd=unit,
-                                                        limit=args.limit, title=title),
-                       (7, 4.5))
+    title = (f"Funnel of {description['model']}: largest outlet deviation "
+             f"({args.magnitude_unit})")
+    png = render_png(lambda ax: plot_funnel(result, ax=ax, rtd=unit, limit=args.limit,
+                                            title=title), (7, 4.5))
+    for path in out.commit({"funnel.json": json_text(record), "funnel.png": png}):
+        print(f"wrote {path}")
     return _exits.OK
 
 
-def write_plot_png(path: str, draw, size: tuple[float, float]) -> None:
-    """Draw one plot with `draw(ax)` on a figure of `size` inches and write it as a PNG to
-    `path` atomically (matplotlib is imported here, only when a plot is asked for)."""
-    import io
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from axialmix._files import write_atomic
-
-    figure, ax = plt.subplots(figsize=size)
-    draw(ax)
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=100)
-    plt.close(figure)
-    write_atomic(path, lambda stream: stream.write(buffer.getvalue()), binary=True)
+def model_inputs(args: argparse.Namespace) -> list[str]:
+    """The input file among the model options (a fit's JSON given to ``--model``)."""
+    return [args.model] if args.model.endswith(".json") or Path(args.model).is_file() else []

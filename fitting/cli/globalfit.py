@@ -5,8 +5,9 @@ long-format table (one row per sample: a curve-id column, time, the raw signal, 
 columns constant within a curve), fits every curve alone, then all curves jointly with the
 parameters given by the laws or shared (``--shared``) and the rest per curve, and prints the
 laws' coefficients with standard errors and 95 % intervals beside those of the two-stage
-analysis (fit one by one, then regress). ``--json OUT`` writes the result, ``--csv OUT`` one
-row per curve. Exit status: 0 done, 1 the joint fit did not converge, 2 bad input (one line,
+analysis (fit one by one, then regress). ``--out DIR`` writes the result as
+``DIR/global-fit.json`` and one row per curve as ``DIR/curves.csv``, all or nothing. Exit
+status: 0 done, 1 the joint fit did not converge, 2 bad input (one line,
 nothing written).
 """
 
@@ -14,11 +15,14 @@ from __future__ import annotations
 
 import argparse
 import re
-from pathlib import Path
+
+from fitting.cli._outputs import OutputError, OutputFolder, add_out_option
 
 __all__ = ["add_parser", "parse_law", "run"]
 
 _COMMAND = "global-fit"
+#: The result set of ``axialmix global-fit --out DIR``.
+FILES = ("global-fit.json", "curves.csv")
 _LAW = re.compile(r"^\s*(?:(log|ln)\s*\(\s*(\w+)\s*\)|(\w+))\s*=\s*(.+?)\s*$")
 
 
@@ -55,8 +59,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="weigh each sample by its curve's additive plus proportional error "
                              "model as axialmix fit estimates it (combined, the default), each "
                              "curve by its own noise level (per-curve), or all equally")
-    parser.add_argument("--json", metavar="OUT", help="write the result as JSON to OUT")
-    parser.add_argument("--csv", metavar="OUT", help="write one row per curve to OUT")
+    add_out_option(parser, "global-fit.json and curves.csv (one row per curve)",
+                   replaced=("--json", "--csv"))
     return parser
 
 
@@ -150,12 +154,13 @@ def run(args: argparse.Namespace) -> int:
     """Run ``axialmix global-fit`` with parsed `args`; returns the exit status."""
     from axialmix import _exits
     from axialmix._csv import DataError
-    from axialmix._files import write_csv, write_json
+    from axialmix._files import csv_text, json_text
 
-    for option, target in (("--json", args.json), ("--csv", args.csv)):
-        if target is not None and not Path(target).resolve().parent.is_dir():
-            return _exits.error_line(_COMMAND, f"{option}: folder "
-                                     f"{Path(target).resolve().parent} does not exist")
+    out = OutputFolder(_COMMAND, args.out, FILES, inputs=[args.table])
+    try:
+        out.check()
+    except OutputError as error:
+        return _exits.error_line(_COMMAND, str(error))
     try:
         from fitting.study import GlobalModel, global_fit, two_stage_law
 
@@ -196,8 +201,8 @@ def run(args: argparse.Namespace) -> int:
     for i, curve in enumerate(table["curve"]):
         print(f"{curve:<12} " + " ".join(f"{table[n][i]:>16.5g} {table[n + '_stderr'][i]:>9.3g}"
                                          for n in names))
-    if args.json is not None:
-        write_json(args.json, record)
-    if args.csv is not None:
-        write_csv(args.csv, list(table), list(zip(*table.values(), strict=True)))
+    for path in out.commit({"global-fit.json": json_text(record),
+                            "curves.csv": csv_text(list(table),
+                                                   list(zip(*table.values(), strict=True)))}):
+        print(f"wrote {path}")
     return _exits.OK if result.converged else _exits.FAILED

@@ -304,18 +304,26 @@ def run(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------ checks before running
-def _check_outputs(*paths: str | None) -> None:
-    """Refuse an output whose folder is missing or not writable, before any work."""
-    for path in paths:
+def _check_outputs(**paths: str | None) -> None:
+    """Refuse an output (option name -> path) whose folder is missing or not writable, that
+    is a folder, or that another output option names too, before any work."""
+    seen: dict[str, str] = {}
+    for name, path in paths.items():
         if path is None:
             continue
+        option = "--" + name.replace("_", "-")
         folder = os.path.dirname(os.path.abspath(path))
         if os.path.isdir(path):
-            raise _BadInput(f"{path} is a folder, not a file")
+            raise _BadInput(f"{option} {path} is a folder, not a file")
         if not os.path.isdir(folder):
-            raise _BadInput(f"cannot write {path}: folder {folder} does not exist")
+            raise _BadInput(f"{option}: cannot write {path}: folder {folder} does not exist")
         if not os.access(folder, os.W_OK | os.X_OK):
-            raise _BadInput(f"cannot write {path}: folder {folder} is not writable")
+            raise _BadInput(f"{option}: cannot write {path}: folder {folder} is not writable")
+        where = os.path.realpath(path)
+        if where in seen:
+            raise _BadInput(f"{option} {path}: the same file as {seen[where]}; each output "
+                            "needs its own")
+        seen[where] = option
 
 
 def _available_memory() -> int | None:
@@ -400,7 +408,7 @@ def _run_vblender(args) -> int:
     from axialmix._files import write_json
     from axialmix.particles import chi_square, particle_v_blender, v_blender_loading
 
-    _check_outputs(args.json)
+    _check_outputs(json=args.json)
     if len(args.exchanges) != 4:
         raise _BadInput(f"--exchanges needs 4 numbers, got {len(args.exchanges)}")
     with _option("--particles/--exchanges"):
@@ -501,7 +509,7 @@ def _run_continuous(args) -> int:
         feeder_feed,
     )
 
-    _check_outputs(args.json, args.rtd_csv, args.samples_csv)
+    _check_outputs(json=args.json, rtd_csv=args.rtd_csv, samples_csv=args.samples_csv)
     network = _continuous_network(args)
     dt = network.step_seconds
     tau = network.n_particles * dt / network.throughput  # steady hold-up / throughput
