@@ -28,15 +28,27 @@ import numpy as np
 import axialmix  # noqa: F401  (float64 before any JAX array is made)
 
 __all__ = [
+    "PARAMETER_ALIASES",
     "Layout",
     "Parameter",
     "Parameters",
     "clip_into_bounds",
     "evaluate_expression",
     "expression_names",
+    "canonical_name",
     "make_layout",
     "parse_expression",
 ]
+
+#: Symbols accepted for parameter names on the command line (the files and tables always
+#: use the name): the Peclet number's symbol, and the short names of the measurement model.
+PARAMETER_ALIASES = {"Pe": "peclet", "t_d": "dead_time", "b": "baseline"}
+
+
+def canonical_name(name: str) -> str:
+    """The parameter name for `name` or its symbol (``"Pe"`` -> ``"peclet"``)."""
+    return PARAMETER_ALIASES.get(name, name)
+
 
 
 @dataclass(frozen=True)

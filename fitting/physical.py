@@ -29,7 +29,7 @@ from fitting.parameters import Parameter, evaluate_expression, make_layout, pars
 from fitting.result import FitResult
 from fitting.uncertainty import interval, t_quantile
 
-__all__ = ["PhysicalQuantity", "physical_quantities", "quantity_unit"]
+__all__ = ["PhysicalQuantity", "physical_quantities", "quantity_column", "quantity_unit"]
 
 #: Relative step of the central differences (in ln p for positive parameters).
 STEP = 1e-6
@@ -38,7 +38,7 @@ _FIXED_UNITS = {"peclet": "1", "variance_ratio": "1", "length_m": "m",
                 "velocity_m_per_s": "m/s", "dispersion_m2_per_s": "m^2/s"}
 #: Readable labels of the hook's keys (the time unit is added).
 _LABELS = {"tau": "tau", "mean_residence_time": "mean residence time", "variance": "variance",
-           "variance_ratio": "sigma^2/tau^2", "peclet": "Pe", "length_m": "L",
+           "variance_ratio": "sigma^2/tau^2", "peclet": "peclet", "length_m": "L",
            "velocity_m_per_s": "v", "dispersion_m2_per_s": "D_z"}
 
 
@@ -86,6 +86,26 @@ def quantity_unit(key: str, time_unit: str) -> tuple[str, str]:
             return _LABELS[stem], time_unit
         if key == f"{stem}_{time_unit}2":
             return _LABELS[stem], f"{time_unit}^2"
+    return key, ""
+
+
+#: Column names (in files) of the keys whose name holds a fixed unit.
+_COLUMNS = {"length_m": "length", "velocity_m_per_s": "velocity",
+            "dispersion_m2_per_s": "dispersion"}
+
+
+def quantity_column(key: str, time_unit: str) -> tuple[str, str]:
+    """The column name and unit of a key of an ``equivalent_adm`` or ``physical`` record in
+    the summary files: the name without its unit (``"tau_min"`` -> ``("tau", "min")``,
+    ``"dispersion_m2_per_s"`` -> ``("dispersion", "m^2/s")``), the names of the ADM's
+    parameters where it is one (``tau``, ``peclet``)."""
+    if key in _FIXED_UNITS:
+        return _COLUMNS.get(key, key), _FIXED_UNITS[key]
+    for stem in ("mean_residence_time", "tau", "variance"):
+        if key == f"{stem}_{time_unit}":
+            return stem, time_unit
+        if key == f"{stem}_{time_unit}2":
+            return stem, f"{time_unit}^2"
     return key, ""
 
 

@@ -34,7 +34,7 @@ from fitting.drawing import FigureSpec, draw
 from fitting.gridsearch import GridResult
 from fitting.measurement import MEASUREMENT_PARAMETERS, MeasuredModel
 from fitting.models import get_model
-from fitting.physical import physical_quantities, quantity_unit
+from fitting.physical import physical_quantities, quantity_column, quantity_unit
 from fitting.result import FitResult
 
 __all__ = [
@@ -50,6 +50,8 @@ __all__ = [
     "headline_parameters",
     "render_fit_png",
     "solver_accuracy",
+    "summary_columns",
+    "summary_row",
     "summary_rows",
     "summary_table",
     "text_table",
@@ -462,44 +464,94 @@ def fit_record(
     return record
 
 
-def summary_rows(records: Sequence[Mapping[str, Any]]) -> tuple[list[str], list[list[Any]]]:
-    """Header and rows (plain values) of the summary of several fit records.
+def _label(name: str, unit: str | None) -> str:
+    """A column name with its unit in brackets (``tau [min]``; none for dimensionless)."""
+    return name if unit in (None, "", "1") else f"{name} [{unit}]"
+
+
+def _extra_quantities(record: Mapping[str, Any]) -> list[str]:
+    """Physical quantities of a record that do not repeat one of its parameters (v, D_z for
+    the ADM; a network's equivalent tau, Pe, D_z)."""
+    values = [entry.get("value") for entry in record["parameters"].values()]
+    keys = []
+    for key, entry in (record.get("physical") or {}).items():
+        stem = key.removesuffix(f"_{record.get('time_unit', 's')}")
+        if entry.get("value") is None or stem in record["parameters"] or (
+                entry["value"] in values and stem == "mean_residence_time"):
+            continue
+        keys.append(key)
+    return keys
+
+
+def summary_columns(record: Mapping[str, Any], factors: Sequence[str]
+                    ) -> tuple[list[str], list[str], list[str]]:
+    """The header of ``summary.csv`` for records like `record` with these `factors`, the
+    parameters it shows and the extra physical quantities (see :func:`summary_rows`)."""
+    names = [name for name, entry in record["parameters"].items()
+             if entry.get("vary", True) or entry.get("expr") is not None]
+    extra = _extra_quantities(record)
+    header = ["curve", *factors, "model", "n_points"]
+    for name in names:
+        unit = record["parameters"][name].get("unit")
+        header += [_label(f"{name}{part}", unit)
+                   for part in ("", "_stderr", "_ci95_low", "_ci95_high")]
+    time_unit = record.get("time_unit", "s")
+    for key in extra:
+        name, unit = quantity_column(key, time_unit)
+        header += [_label(f"{name}{part}", unit)
+                   for part in ("", "_stderr", "_ci95_low", "_ci95_high")]
+    header += ["errors", "converged", "message", "systematic_misfit", "runs_test_p",
+               "lag1_autocorrelation", "loss", "sse", "n_evaluations", "wall_time_s"]
+    return header, names, extra
+
+
+def summary_row(curve: str, levels: Sequence[str], record: Mapping[str, Any],
+                names: Sequence[str], extra: Sequence[str]) -> list[Any]:
+    """One row of ``summary.csv`` (the `names` and `extra` of :func:`summary_columns`)."""
+    cells: list[Any] = [curve, *levels, record["model"], record["n_points"]]
+    for entries, keys in ((record["parameters"], names), (record.get("physical") or {}, extra)):
+        for key in keys:
+            entry = entries.get(key) or {}
+            low, high = entry.get("ci95") or (None, None)
+            cells += [entry.get("value"), entry.get("stderr"), low, high]
+    verdict = record.get("lack_of_fit") or {}
+    cells += [(record.get("error_model") or {}).get("kind"), record["converged"],
+              record["message"], verdict.get("systematic"), verdict.get("runs_test_p"),
+              verdict.get("lag1_autocorrelation"), record["loss"], record["sse"],
+              record["n_evaluations"], round(record["wall_time"], 4)]
+    return cells
+
+
+def summary_rows(records: Sequence[Mapping[str, Any]], factors: Sequence[str] = (), *,
+                 curves: Sequence[str] | None = None,
+                 levels: Sequence[Sequence[str]] | None = None
+                 ) -> tuple[list[str], list[list[Any]]]:
+    """Header and rows of ``summary.csv``: the one summary schema of every mode (files, a
+    folder, a long-format study, a design table).
 
     **Arguments:**
 
     - `records`: records from :func:`fit_record`, all of the same model.
+    - `factors`: the study's factor names (none for files and folders).
+    - `curves`: the curve names (default: each record's ``data``).
+    - `levels`: per curve the factor levels as written (default: none).
 
-    **Returns:** ``(header, rows)``: one row per curve with each parameter's value and
-    standard error, the loss, evaluations, time and convergence.
+    **Returns:** ``(header, rows)``. Columns: ``curve``, the factors, ``model``,
+    ``n_points``, each fitted parameter's value, standard error and 95 % interval
+    (``tau [s]``, ``tau_stderr [s]``, ``tau_ci95_low [s]``, ``tau_ci95_high [s]``: units in
+    brackets, none for dimensionless ones), the same for physical quantities that are not
+    parameters (``velocity [m/s]``, ``dispersion [m^2/s]``, a network's equivalent ``tau [s]`` and
+    ``peclet``), then
+    the error model, convergence and its message, the lack-of-fit verdict and its tests,
+    loss, evaluations and wall time.
     """
-    names = list(records[0]["parameters"]) if records else []
-    header = ["data"]
-    for name in names:
-        header += [name, f"{name}_stderr"]
-    physical = _physical_keys(records)
-    for key in physical:
-        header += [key, f"{key}_stderr"]
-    header += ["loss", "n_evaluations", "wall_time_s", "converged", "systematic_misfit"]
-    with_grid = any("grid_search" in r for r in records)
-    if with_grid:
-        header += ["grid_loss", "grid_n_evaluations"]
-    rows = []
-    for record in records:
-        row: list[Any] = [record["data"]]
-        for name in names:
-            entry = record["parameters"].get(name, {})
-            row += [entry.get("value"), entry.get("stderr")]
-        for key in physical:
-            entry = (record.get("physical") or {}).get(key, {})
-            row += [entry.get("value"), entry.get("stderr")]
-        verdict = record.get("lack_of_fit") or {}
-        row += [record["loss"], record["n_evaluations"], round(record["wall_time"], 4),
-                record["converged"], verdict.get("systematic")]
-        if with_grid:
-            grid = record.get("grid_search") or {}
-            row += [grid.get("loss"), grid.get("n_evaluations")]
-        rows.append(row)
-    return header, rows
+    if not records:
+        return ["curve", *factors], []
+    curves = [r["data"] for r in records] if curves is None else list(curves)
+    levels = [[] for _ in records] if levels is None else list(levels)
+    header, names, extra = summary_columns(records[0], factors)
+    return header, [summary_row(curve, level, record, names, extra)
+                    for curve, level, record in zip(curves, levels, records, strict=True)]
 
 
 def _physical_keys(records: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -527,7 +579,7 @@ def summary_table(records: Sequence[Mapping[str, Any]]) -> str:
     units = records[0]["parameters"] if records else {}
     labels = [_labelled(name, units[name].get("unit", "")) for name in names]
     time_unit = records[0].get("time_unit", "s") if records else "s"
-    header = ["data", *labels, *(_labelled(*quantity_unit(key, time_unit)) for key in physical),
+    header = ["curve", *labels, *(_labelled(*quantity_unit(key, time_unit)) for key in physical),
               "loss", "evaluations", "time (s)", "converged", "lack of fit"]
     if with_grid:
         header += ["grid loss", "grid evaluations"]
@@ -680,12 +732,12 @@ def _interval_text(label: str, value: float | None, interval, unit: str) -> str:
 
 
 #: Equivalent-ADM quantities a fit plot states beside the model's own parameters.
-_HEADLINE_QUANTITIES = ("tau", "Pe", "mean residence time")
+_HEADLINE_QUANTITIES = ("tau", "peclet", "mean residence time")
 
 
 def headline_parameters(result: FitResult) -> list[str]:
     """The lines a fit plot states: each free model parameter (the measurement model's
-    amplitude, dead time and baseline left out) and the equivalent ADM's ``tau`` and ``Pe``
+    amplitude, dead time and baseline left out) and the equivalent ADM's ``tau`` and ``peclet``
     where they are not parameters, each with its 95 % interval and unit."""
     units = parameter_units(result)
     lines = [_interval_text(name, result.values[name], result.ci95.get(name), units[name])

@@ -1,6 +1,22 @@
+import os
+import shutil
+import tempfile
+
 import pytest
 
 import axialmix  # noqa: F401  (float64 for every test)
+
+# Each test process (and the command-line runs it starts) keeps its compiled programs in a
+# cache folder of its own, removed at the end: the suite neither reads nor fills the user's
+# cache, and the two test processes never share one (what processes sharing a cache do is
+# tested on its own, in tests/test_compilation_cache.py).
+_CACHE = tempfile.mkdtemp(prefix=f"axialmix-tests-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-")
+os.environ["XDG_CACHE_HOME"] = _CACHE
+os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
+
+
+def pytest_unconfigure(config):
+    shutil.rmtree(_CACHE, ignore_errors=True)
 
 
 def pytest_addoption(parser):

@@ -62,8 +62,9 @@ def test_fit_folder_gives_summary_table_json_csv_and_plots(tmp_path, capsys):
     assert [f["data"] for f in summary["fits"]] == [p.stem for p in EXAMPLE_FILES]
     with open(out / "summary.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    assert [r["data"] for r in rows] == [p.stem for p in EXAMPLE_FILES]
-    assert {"k_f", "k_f_stderr", "loss", "n_evaluations"} <= set(rows[0])
+    assert [r["curve"] for r in rows] == [p.stem for p in EXAMPLE_FILES]
+    assert {"model", "n_points", "k_f [1/s]", "k_f_stderr [1/s]", "k_f_ci95_low [1/s]",
+            "loss", "n_evaluations"} <= set(rows[0])
 
 
 @pytest.mark.slow

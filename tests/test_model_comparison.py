@@ -124,7 +124,7 @@ def test_command_line_compares_comma_separated_models_in_one_table(adm_curve, tm
         assert (out / f"{name}.adm.png").is_file()
     with open(out / "summary.csv") as stream:
         rows = list(csv.DictReader(stream))
-    assert [(r["data"], r["model"]) for r in rows] == [("one", "adm"), ("one", "tanks"),
+    assert [(r["curve"], r["model"]) for r in rows] == [("one", "adm"), ("one", "tanks"),
                                                        ("two", "adm"), ("two", "tanks")]
     assert json.loads((out / "summary.json").read_text())["models"] == ["adm", "tanks"]
 

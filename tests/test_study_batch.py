@@ -88,8 +88,8 @@ def test_cli_study_recovers_exact_curves_with_units_factors_and_transport(cli_su
         assert low <= float(row["tau [min]"]) <= high
         # v = L / tau and D_z = v L / Pe (MODELS.md section 2), tau in seconds.
         velocity = LENGTH_M / (float(row["tau [min]"]) * 60.0)
-        assert float(row["velocity_m_per_s"]) == pytest.approx(velocity, rel=1e-9)
-        assert float(row["dispersion_m2_per_s"]) == pytest.approx(
+        assert float(row["velocity [m/s]"]) == pytest.approx(velocity, rel=1e-9)
+        assert float(row["dispersion [m^2/s]"]) == pytest.approx(
             velocity * LENGTH_M / float(row["peclet"]), rel=1e-9)
         assert row["converged"] == "True" and row["errors"] == "combined"
     assert summary["complete"] and summary["n_fitted"] == len(RUNS)

@@ -17,7 +17,7 @@ fitting: every file (read in full), every option, fixed values a model is undefi
 (``--fix tau=0``), curves too small or large for float64, and whether ``--out`` can be
 created and written. Then each curve is fitted; its JSON record and PNG
 plot are written to ``DIR/<name>.json`` and ``DIR/<name>.png`` as soon as it is done
-(atomically), so Ctrl-C keeps finished curves. Several curves also give ``DIR/summary.json``
+(atomically), so Ctrl-C keeps finished curves. Every run also gives ``DIR/summary.json``
 and ``DIR/summary.csv``.
 
 One run at a time writes into a folder: a run holds the lock file ``DIR/.axialmix-fit.lock``
@@ -119,8 +119,6 @@ GRID_HELD = ("k_out", "amplitude", "dead_time", "baseline")
 #: Rates that are not compartment fluxes: searched like other parameters, around the fit (the
 #: dead-zone exchange rate of the exchange models).
 NOT_SOURCE_RATES = ("k_d",)
-#: Short names accepted by ``--free`` for the measurement parameters.
-FREE_ALIASES = {"t_d": "dead_time", "b": "baseline"}
 #: Starts per compiled batch when ``--starts`` is large: progress is shown between batches.
 STARTS_PER_BATCH = 256
 #: The lock file that marks an output folder as being written.
@@ -269,9 +267,12 @@ def _settings_for_each(models, fixes: Sequence[str], ties: Sequence[str]) -> lis
                 raise InputError(f"{option}: no compared model has {' and '.join(sorted(labels))}"
                                  f" ({', '.join(m.name for m in models)})")
 
+    from fitting.parameters import canonical_name
+
     def applies(model, item: str, option: str) -> bool:
         name, _, value = item.partition("=")
-        labels = {name.strip()} if option == "--fix" else {name.strip(), value.strip()}
+        name, value = canonical_name(name.strip()), canonical_name(value.strip())
+        labels = {name} if option == "--fix" else {name, value}
         return labels <= set(model.parameter_names)
 
     return [_parameter_settings(m, [f for f in fixes if applies(m, f, "--fix")],
@@ -279,12 +280,15 @@ def _settings_for_each(models, fixes: Sequence[str], ties: Sequence[str]) -> lis
 
 
 def _pairs(items: Sequence[str], option: str) -> list[tuple[str, str]]:
+    from fitting.parameters import canonical_name
+
     pairs = []
     for item in items:
         name, sep, value = item.partition("=")
         if not sep or not name.strip() or not value.strip():
             raise InputError(f"{option}: expected NAME=VALUE, got {item!r}")
-        pairs.append((name.strip(), value.strip()))
+        value = canonical_name(value.strip()) if option == "--tie" else value.strip()
+        pairs.append((canonical_name(name.strip()), value))
     return pairs
 
 
@@ -333,11 +337,12 @@ def _column(text: str | None) -> str | int | None:
 def _free_names(items: Sequence[str]) -> tuple[str, ...]:
     """The measurement parameters of ``--free`` (comma-separated or repeated; t_d, b allowed)."""
     from fitting.measurement import FREEABLE
+    from fitting.parameters import canonical_name
 
     names = []
     for item in items:
         for name in item.split(","):
-            name = FREE_ALIASES.get(name.strip(), name.strip())
+            name = canonical_name(name.strip())
             if name not in FREEABLE:
                 raise InputError(f"--free: unknown measurement parameter {name!r}; choose "
                                  f"from {', '.join(FREEABLE)} (or t_d, b)")
@@ -1016,7 +1021,7 @@ class _Run(_Supervised):
             "models": [m.name for m, _ in self.compared], "loss_name": self.args.loss,
             "complete": not interrupted,
             "comparisons": [{k: v for k, v in r.items() if k != "fits"} for r in records]})
-        header = ["data", "model", "sse", "aicc", "delta_aicc", "bic", "systematic_misfit",
+        header = ["curve", "model", "sse", "aicc", "delta_aicc", "bic", "systematic_misfit",
                   "converged", "recommended"]
         rows = [[r["data"], m["model"], m["sse"], m["aicc"], m["delta_aicc"], m["bic"],
                  m["lack_of_fit"]["systematic"], m["converged"], m["model"] == r["best"]]
@@ -1025,14 +1030,15 @@ class _Run(_Supervised):
 
     def _write_summary(self, interrupted: bool) -> None:
         records = list(self.records)
-        if len(self.curves) <= 1 or not records:
+        if not records:
             return  # before importing: after Ctrl-C the worker may still be importing
         from fitting.report import summary_rows, summary_table, write_csv, write_json
 
         if self.compared:
             self._write_comparison_summary(records, interrupted)
             return
-        print(summary_table(records), flush=True)
+        if len(self.curves) > 1:  # one curve: its own table is the summary
+            print(summary_table(records), flush=True)
         write_json(self.out / "summary.json", {"model": self.model.name,
                                                "loss_name": self.args.loss,
                                                "complete": not interrupted, "fits": records})

@@ -146,8 +146,10 @@ def _time_unit(option: str, unit: str) -> str:
 def _settings(items: Sequence[str]) -> dict[str, float]:
     values: dict[str, float] = {}
     for item in items:
+        from fitting.parameters import canonical_name
+
         name, equals, text = item.partition("=")
-        name = name.strip()
+        name = canonical_name(name.strip())
         if not equals or not name:
             raise OptionError(f"--set needs NAME=VALUE, got {item!r}")
         (values[name],) = numbers(f"--set {name}", text)

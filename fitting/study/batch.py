@@ -57,7 +57,7 @@ from fitting.losses import ERROR_KINDS
 from fitting.measurement import FREEABLE, INLET_KINDS, Inlet, measured
 from fitting.models import MODELS, Model, network_model
 from fitting.parameters import Parameter
-from fitting.report import fit_record
+from fitting.report import fit_record, summary_columns, summary_row, summary_rows
 from fitting.solve import MultiStart, enable_compilation_cache
 from fitting.study.input import Study, factor_value
 
@@ -216,59 +216,6 @@ def fit_chunk(plan: StudyPlan, curves: Sequence[Curve],
             for i, (result, curve) in enumerate(zip(results, curves, strict=True))]
 
 
-def _label(name: str, unit: str | None) -> str:
-    """A column name with its unit in brackets (``tau [min]``; none for dimensionless)."""
-    return name if unit in (None, "", "1") else f"{name} [{unit}]"
-
-
-def _extra_quantities(record: Mapping[str, Any]) -> list[str]:
-    """Physical quantities of a record that do not repeat one of its parameters (v, D_z for
-    the ADM; a network's equivalent tau, Pe, D_z)."""
-    values = [entry.get("value") for entry in record["parameters"].values()]
-    keys = []
-    for key, entry in (record.get("physical") or {}).items():
-        stem = key.removesuffix(f"_{record.get('time_unit', 's')}")
-        if entry.get("value") is None or stem in record["parameters"] or (
-                entry["value"] in values and stem == "mean_residence_time"):
-            continue
-        keys.append(key)
-    return keys
-
-
-def _table_columns(record: Mapping[str, Any], factors: Sequence[str]
-                   ) -> tuple[list[str], list[str], list[str]]:
-    """The header of a study table, and the parameters and extra quantities it shows."""
-    names = [name for name, entry in record["parameters"].items()
-             if entry.get("vary", True) or entry.get("expr") is not None]
-    extra = _extra_quantities(record)
-    header = ["curve", *factors, "model", "n_points"]
-    for name in names:
-        unit = record["parameters"][name].get("unit")
-        header += [_label(f"{name}{part}", unit)
-                   for part in ("", "_stderr", "_ci95_low", "_ci95_high")]
-    for key in extra:
-        header += [key, f"{key}_stderr", f"{key}_ci95_low", f"{key}_ci95_high"]
-    header += ["errors", "converged", "message", "systematic_misfit", "runs_test_p",
-               "lag1_autocorrelation", "loss", "sse", "n_evaluations", "wall_time_s"]
-    return header, names, extra
-
-
-def _table_row(curve: str, levels: Sequence[str], record: Mapping[str, Any],
-               names: Sequence[str], extra: Sequence[str]) -> list[Any]:
-    cells: list[Any] = [curve, *levels, record["model"], record["n_points"]]
-    for entries, keys in ((record["parameters"], names), (record.get("physical") or {}, extra)):
-        for key in keys:
-            entry = entries.get(key) or {}
-            low, high = entry.get("ci95") or (None, None)
-            cells += [entry.get("value"), entry.get("stderr"), low, high]
-    verdict = record.get("lack_of_fit") or {}
-    cells += [(record.get("error_model") or {}).get("kind"), record["converged"],
-              record["message"], verdict.get("systematic"), verdict.get("runs_test_p"),
-              verdict.get("lag1_autocorrelation"), record["loss"], record["sse"],
-              record["n_evaluations"], round(record["wall_time"], 4)]
-    return cells
-
-
 def study_table(rows: Sequence[Mapping[str, Any]], factors: Sequence[str]
                 ) -> tuple[list[str], list[list[Any]]]:
     """The summary table of a study: one row per curve, rendered from the curves' records.
@@ -282,15 +229,14 @@ def study_table(rows: Sequence[Mapping[str, Any]], factors: Sequence[str]
     ``n_points``, each fitted parameter's value, standard error and 95 % interval
     (``tau [s]``, ``tau_stderr [s]``, ``tau_ci95_low [s]``, ``tau_ci95_high [s]``: units in
     brackets, none for dimensionless ones), the same for physical quantities that are not
-    parameters (``velocity_m_per_s``, ``dispersion_m2_per_s``: units in their names), then
+    parameters (``velocity [m/s]``, ``dispersion [m^2/s]``, a network's equivalent ``tau [s]`` and
+    ``peclet``), then
     the error model, convergence and its message, the lack-of-fit verdict and its tests,
     loss, evaluations and wall time.
     """
-    if not rows:
-        return ["curve", *factors], []
-    header, names, extra = _table_columns(rows[0]["record"], factors)
-    return header, [_table_row(row["curve"], row["levels"], row["record"], names, extra)
-                    for row in rows]
+    return summary_rows([row["record"] for row in rows], factors,
+                        curves=[row["curve"] for row in rows],
+                        levels=[row["levels"] for row in rows])
 
 
 class StudyRun:
@@ -385,9 +331,9 @@ class StudyRun:
             self.refused[row["curve"]] = row["record"]["refused"]
             return
         if self._columns is None:
-            self._columns = _table_columns(row["record"], self.study.factors)
+            self._columns = summary_columns(row["record"], self.study.factors)
         _, names, extra = self._columns
-        self.done[row["curve"]] = _table_row(row["curve"], row["levels"], row["record"],
+        self.done[row["curve"]] = summary_row(row["curve"], row["levels"], row["record"],
                                              names, extra)
         self._offsets[row["curve"]] = (offset, size)
 
