@@ -569,9 +569,28 @@ def _physical_keys(records: Sequence[Mapping[str, Any]]) -> list[str]:
     return keys
 
 
-def summary_table(records: Sequence[Mapping[str, Any]]) -> str:
-    """The readable summary table of several fits (value ± standard error per parameter, and
-    per physical quantity: a network's equivalent tau, Pe and D_z, an ADM's v and D_z)."""
+#: Width of the terminal the compact tables are made for (characters).
+TABLE_WIDTH = 100
+
+
+def summary_table(records: Sequence[Mapping[str, Any]], wide: bool = False) -> str:
+    """The readable summary table of several fits.
+
+    **Arguments:**
+
+    - `records`: records from :func:`fit_record`, all of the same model.
+    - `wide`: every column (each parameter, fixed ones too, and each physical quantity with
+      its standard error, loss, evaluations, time, convergence and the lack-of-fit tests);
+      otherwise the headline numbers in at most :data:`TABLE_WIDTH` characters: per curve the
+      free model parameters and the equivalent ADM's tau and peclet as value ± standard
+      error, and one word on the fit (``ok``, ``MISFIT`` for systematic residuals, ``NOT
+      CONVERGED``), the columns that do not fit the width left out and named below the table
+      (everything is in ``summary.csv``).
+
+    **Returns:** the table as text.
+    """
+    if not wide:
+        return _compact_summary_table(records)
     names = list(records[0]["parameters"]) if records else []
     # The moments behind a network's equivalent ADM stay in the CSV and JSON files.
     physical = [key for key in _physical_keys(records) if not key.startswith("variance")]
@@ -605,6 +624,49 @@ def summary_table(records: Sequence[Mapping[str, Any]]) -> str:
             row += [_number(grid.get("loss"), 4), f"{grid.get('n_evaluations', 0):,}"]
         rows.append(row)
     return text_table(header, rows)
+
+
+def _compact_summary_table(records: Sequence[Mapping[str, Any]]) -> str:
+    first = records[0] if records else {"parameters": {}}
+    names = [name for name, entry in first["parameters"].items()
+             if name not in MEASUREMENT_PARAMETERS
+             and (entry.get("vary", True) or entry.get("expr") is not None)]
+    time_unit = first.get("time_unit", "s")
+    derived = [key for key in _physical_keys(records)
+               if quantity_column(key, time_unit)[0] in ("tau", "peclet")]
+    columns = [(_labelled(name, first["parameters"][name].get("unit", "")),
+                [_compact(r["parameters"].get(name, {})) for r in records]) for name in names]
+    columns += [(_labelled(*quantity_unit(key, time_unit)),
+                 [_compact((r.get("physical") or {}).get(key, {})) for r in records])
+                for key in derived]
+    verdicts = [_fit_word(r) for r in records]
+    left_out: list[str] = []
+    while True:
+        header = ["curve", *(title for title, _ in columns), "fit"]
+        rows = [[r["data"], *(cells[i] for _, cells in columns), verdicts[i]]
+                for i, r in enumerate(records)]
+        table = text_table(header, rows)
+        if max(len(line) for line in table.splitlines()) <= TABLE_WIDTH or len(columns) <= 1:
+            break
+        left_out.insert(0, columns.pop()[0])
+    if left_out:
+        table += f"\n(left out for width: {', '.join(left_out)}; --wide shows every column)"
+    return table
+
+
+def _compact(entry: Mapping[str, Any]) -> str:
+    """``1.358±2.7``: a value to 4 digits with its standard error to 2 (``-`` if none)."""
+    value, error = _finite(entry.get("value")), _finite(entry.get("stderr"))
+    if value is None:
+        return "-"
+    return f"{value:.4g}" + ("" if error is None else f"±{error:.2g}")
+
+
+def _fit_word(record: Mapping[str, Any]) -> str:
+    if not record.get("converged"):
+        return "NOT CONVERGED"
+    verdict = record.get("lack_of_fit") or {}
+    return "MISFIT" if verdict.get("systematic") else "ok"
 
 
 # --- model comparison ---------------------------------------------------------------------------

@@ -41,12 +41,12 @@ def summaries(tmp_path_factory):
     for file in FILES:
         assert main(["fit", str(file), *MODEL, "--out", str(tmp / file.stem)]) == 0
         alone += _summary(tmp / file.stem)
-    return _summary(tmp / "folder"), _summary(tmp / "study"), alone
+    return _summary(tmp / "folder"), _summary(tmp / "study"), alone, tmp / "folder"
 
 
 def test_every_mode_writes_the_same_summary_columns(summaries, capsys):
     capsys.readouterr()
-    folder, study, alone = summaries
+    folder, study, alone, _ = summaries
     assert [r["curve"] for r in folder] == [r["curve"] for r in study] == [f.stem for f in FILES]
     assert list(folder[0]) == list(study[0]) == list(alone[0])
     header = list(folder[0])
@@ -57,7 +57,7 @@ def test_every_mode_writes_the_same_summary_columns(summaries, capsys):
 
 
 def test_files_and_folders_give_the_same_values_and_the_study_the_same_optimum(summaries):
-    folder, study, alone = summaries
+    folder, study, alone, _ = summaries
     skip = {"wall_time_s", "message"}
     for mine, theirs in zip(folder, alone, strict=True):  # the same solver, curve by curve
         for key in set(mine) - skip - {"n_evaluations"}:
@@ -111,3 +111,17 @@ def test_every_parameter_name_the_table_prints_is_taken_by_fix(model, fixed, tmp
     if model == "adm":  # the table's name, and its symbol
         assert "peclet" in parameters
         assert _parameter_settings(measured_model, ["Pe=3"], [])["peclet"].value == 3.0
+
+
+def test_the_summary_table_fits_100_columns_and_wide_shows_every_column(summaries):
+    import json
+
+    from fitting.report import summary_table
+
+    records = json.loads((summaries[3] / "summary.json").read_text())["fits"]
+    compact = summary_table(records)
+    assert max(len(line) for line in compact.splitlines()) <= 100
+    assert all(r["data"] in compact for r in records) and "k_out" not in compact
+    wide = summary_table(records, wide=True)
+    for column in ("k_out (1/s)", "amplitude", "loss", "evaluations", "lack of fit"):
+        assert column in wide

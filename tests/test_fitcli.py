@@ -55,8 +55,10 @@ def test_fit_folder_gives_summary_table_json_csv_and_plots(tmp_path, capsys):
         equivalent = record["equivalent_adm"]
         assert equivalent["tau_s"] > 0 and equivalent["peclet"] > 0
         _check_png(out / f"{path.stem}.png")
-    for column in ("k_f", "k_r", "k_s", "loss", "evaluations"):
+    for column in ("k_f (1/s)", "k_r (1/s)", "k_s (1/s)", "tau (s)", "peclet", "fit"):
         assert column in captured.out
+    table = captured.out.split("results written")[0]
+    assert max(len(line) for line in table.splitlines()) <= 100  # a 100-column terminal
     assert f"[{len(EXAMPLE_FILES)}/{len(EXAMPLE_FILES)}]" in captured.err  # progress
     summary = json.loads((out / "summary.json").read_text())
     assert [f["data"] for f in summary["fits"]] == [p.stem for p in EXAMPLE_FILES]

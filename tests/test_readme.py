@@ -112,7 +112,7 @@ def _agree(printed: list[str], shown: list[str]) -> bool:
     for mine, theirs in zip(printed, shown, strict=True):
         if mine == theirs:
             continue
-        words, expected = mine.split(), theirs.split()
+        words, expected = mine.replace("±", " ± ").split(), theirs.replace("±", " ± ").split()
         if len(words) != len(expected):
             return False
         for word, want in zip(words, expected, strict=True):
@@ -128,6 +128,8 @@ def _agree(printed: list[str], shown: list[str]) -> bool:
 def test_numbers_may_differ_in_their_last_printed_digit_only():
     assert _agree(["loss 8.286e-05 done"], ["loss 8.287e-05 done"])
     assert _agree(["7.029 +/- 0.39"], ["7.030 +/- 0.39"])
+    assert _agree(["7.029±0.39 ok"], ["7.030±0.38 ok"])
+    assert not _agree(["7.029±0.39"], ["7.029±0.41"])
     assert not _agree(["loss 8.284e-05 done"], ["loss 8.287e-05 done"])
     assert not _agree(["7.029 +/- 0.39"], ["7.029 +/- 0.40 yes"])
     assert not _agree(["converged: no"], ["converged: yes"])

@@ -167,6 +167,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         help="least squares (default) or the source's mean absolute error")
     parser.add_argument("--grid", action="store_true",
                         help="also run the source's exhaustive grid search and compare")
+    parser.add_argument("--wide", action="store_true",
+                        help="print every column of the summary table (default: the headline "
+                        "numbers in 100 columns; every column is in summary.csv)")
     parser.add_argument("--starts", type=int, default=None, metavar="N",
                         help="number of starts (default: the moment estimate for ADM and "
                         "tanks models, 8 for compartment networks)")
@@ -1038,7 +1041,7 @@ class _Run(_Supervised):
             self._write_comparison_summary(records, interrupted)
             return
         if len(self.curves) > 1:  # one curve: its own table is the summary
-            print(summary_table(records), flush=True)
+            print(summary_table(records, wide=self.args.wide), flush=True)
         write_json(self.out / "summary.json", {"model": self.model.name,
                                                "loss_name": self.args.loss,
                                                "complete": not interrupted, "fits": records})
