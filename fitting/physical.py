@@ -19,7 +19,7 @@ likelihood (:func:`fitting.diagnostics.profile_likelihood`) checks it where it m
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,7 +29,8 @@ from fitting.parameters import Parameter, evaluate_expression, make_layout, pars
 from fitting.result import FitResult
 from fitting.uncertainty import interval, t_quantile
 
-__all__ = ["PhysicalQuantity", "physical_quantities", "quantity_column", "quantity_unit"]
+__all__ = ["PhysicalQuantity", "hook_numbers", "physical_quantities", "propagated_quantities",
+           "quantity_column", "quantity_unit"]
 
 #: Relative step of the central differences (in ln p for positive parameters).
 STEP = 1e-6
@@ -119,7 +120,9 @@ def _values_with(result: FitResult, changes: Mapping[str, float]) -> dict[str, f
     return values
 
 
-def _numbers(record: Mapping[str, Any] | None) -> dict[str, float]:
+def hook_numbers(record: Mapping[str, Any] | None) -> dict[str, float]:
+    """The numbers of an ``equivalent_adm`` record (``None`` as NaN; ``length_m`` and text
+    left out)."""
     if record is None:
         return {}
     return {k: float(v) if v is not None else math.nan for k, v in record.items()
@@ -144,29 +147,52 @@ def physical_quantities(result: FitResult, length: float | None = None
         return {}
     unit = result.time_unit
 
-    def evaluate(values: Mapping[str, float]) -> dict[str, float]:
-        return _numbers(result.model.equivalent_adm(values, length, unit))
+    def evaluate(changes: Mapping[str, float]) -> dict[str, float]:
+        return hook_numbers(result.model.equivalent_adm(_values_with(result, changes), length,
+                                                    unit))
 
-    centre = evaluate(result.values)
     free = list(result.free_names)
+    return propagated_quantities(evaluate, {n: float(result.values[n]) for n in free},
+                                 {n: result.init_params[n] for n in free},
+                                 np.asarray(result.covariance, float), result.dof, unit)
+
+
+def propagated_quantities(evaluate: Callable[[Mapping[str, float]], Mapping[str, float]],
+                          values: Mapping[str, float], settings: Mapping[str, Parameter],
+                          covariance: np.ndarray, dof: int, time_unit: str
+                          ) -> dict[str, PhysicalQuantity]:
+    """Quantities computed from fitted values, with delta-method standard errors.
+
+    **Arguments:**
+
+    - `evaluate`: ``evaluate(changes)`` gives the quantities (key -> number) with the free
+      values changed as `changes` says (``{}``: at the fitted values).
+    - `values`: the free values, in the order of `covariance`; `settings`: their
+      :class:`~fitting.parameters.Parameter` (a value bounded below by 0 is differenced in
+      its logarithm).
+    - `covariance`: of the free values; `dof`: the fit's degrees of freedom (t quantile of
+      the 95 % intervals); `time_unit`: of the fit (labels and units).
+
+    **Returns:** ``{key: PhysicalQuantity}`` in the order `evaluate` gives them.
+    """
+    centre = dict(evaluate({}))
+    free = list(values)
     gradients = {key: np.zeros(len(free)) for key in centre}
     for j, name in enumerate(free):
-        value = float(result.values[name])
-        setting: Parameter = result.init_params[name]
+        value = float(values[name])
+        setting = settings[name]
         if setting.min is not None and setting.min >= 0 and value > 0:
             up, down = value * math.exp(STEP), value * math.exp(-STEP)
         else:
             delta = STEP * max(abs(value), 1e-12)
             up, down = value + delta, value - delta
-        upper = evaluate(_values_with(result, {name: up}))
-        lower = evaluate(_values_with(result, {name: down}))
+        upper, lower = evaluate({name: up}), evaluate({name: down})
         for key in centre:
             gradients[key][j] = (upper[key] - lower[key]) / (up - down)
-    covariance = np.asarray(result.covariance, float)
-    quantile = t_quantile(result.dof)
+    quantile = t_quantile(dof)
     quantities = {}
     for key, value in centre.items():
-        label, quantity_unit_ = quantity_unit(key, unit)
+        label, quantity_unit_ = quantity_unit(key, time_unit)
         gradient = gradients[key]
         stderr = ci95 = None
         if math.isfinite(value) and covariance.shape == (len(free),) * 2:

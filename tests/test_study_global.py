@@ -242,7 +242,7 @@ def test_global_fit_command_reads_a_long_table_and_gives_the_same_law(study, tmp
     status = main(["global-fit", str(table), "--weights", "per-curve",
                    "--curve-column", "run", "--time-column", "time",
                    "--value-column", "conc", "--law", "log(peclet)=speed+flow",
-                   "--out", str(folder)])
+                   "--length", "0.5", "--out", str(folder)])
     assert status == 0
     printed = capsys.readouterr().out
     assert "two-stage regression" in printed and "peclet:speed" in printed
@@ -258,6 +258,17 @@ def test_global_fit_command_reads_a_long_table_and_gives_the_same_law(study, tmp
     assert [c["curve"] for c in written["curves"]] == [c.name for c in curves]
     header = rows.read_text().splitlines()[0].split(",")
     assert header[:3] == ["curve", "speed", "flow"] and "peclet_stderr" in header
+    # With the length: v = L / tau and D_z = v L / Pe per curve (MODELS.md section 2), v's
+    # relative standard error that of tau (delta method), each interval around its value.
+    for entry in written["curves"]:
+        tau, peclet = entry["tau"], entry["peclet"]
+        assert entry["velocity_m_per_s"] == pytest.approx(0.5 / tau, rel=1e-12)
+        assert entry["dispersion_m2_per_s"] == pytest.approx(0.25 / (tau * peclet), rel=1e-12)
+        assert entry["velocity_m_per_s_stderr"] / entry["velocity_m_per_s"] == pytest.approx(
+            entry["tau_stderr"] / tau, rel=1e-5)
+        assert entry["dispersion_m2_per_s_low"] < entry["dispersion_m2_per_s"] < entry[
+            "dispersion_m2_per_s_high"]
+    assert "D_z (m^2/s)" in printed
 
 
 @pytest.mark.parametrize("text, parameter, terms, transform", [

@@ -14,6 +14,7 @@ nothing written).
 from __future__ import annotations
 
 import argparse
+import math
 import re
 
 from fitting.cli._outputs import OutputError, OutputFolder, add_out_option
@@ -59,6 +60,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="weigh each sample by its curve's additive plus proportional error "
                              "model as axialmix fit estimates it (combined, the default), each "
                              "curve by its own noise level (per-curve), or all equally")
+    parser.add_argument("--length", type=float, default=None, metavar="METRES",
+                        help="blender length (m): each curve's velocity v and axial dispersion "
+                        "D_z (SI units) with standard errors and 95 %% intervals from the "
+                        "joint covariance (there is no default length)")
     add_out_option(parser, "global-fit.json and curves.csv (one row per curve)",
                    replaced=("--json", "--csv"))
     return parser
@@ -116,7 +121,31 @@ def _read_study(path, curve_column: str, time_column: str | None, value_column: 
     return list(study.curves), factors
 
 
-def _to_dict(result, two_stage) -> dict:
+#: Per-curve physical quantities shown in the table and files (the others repeat parameters).
+_PHYSICAL = ("velocity_m_per_s", "dispersion_m2_per_s")
+
+
+def _table(result, physical) -> dict[str, list]:
+    """The per-curve columns of the result, with each curve's v and D_z when a length was
+    given (``velocity_m_per_s``, ``..._stderr``, ``..._low``, ``..._high``)."""
+    table = result.table()
+    for key in _PHYSICAL:
+        if not physical or key not in physical[0]:
+            continue
+        entries = [quantities[key] for quantities in physical]
+        table[key] = [e.value for e in entries]
+        table[f"{key}_stderr"] = [e.stderr for e in entries]
+        table[f"{key}_low"] = [None if e.ci95 is None else e.ci95[0] for e in entries]
+        table[f"{key}_high"] = [None if e.ci95 is None else e.ci95[1] for e in entries]
+    return table
+
+
+def _cell(value, form: str) -> str:
+    width = int(form.split(".")[0])
+    return "-".rjust(width) if value is None else format(value, form)
+
+
+def _to_dict(result, two_stage, physical) -> dict:
     """The JSON form of a global fit and its two-stage comparison."""
 
     def law_entry(estimate) -> dict:
@@ -130,7 +159,7 @@ def _to_dict(result, two_stage) -> dict:
                                                        estimate.stderr, estimate.ci95,
                                                        strict=True)]}
 
-    table = result.table()
+    table = _table(result, physical)
     curves = [{key: column[i] for key, column in table.items()}
               for i in range(len(result.curve_names))]
     spec = result.spec
@@ -161,6 +190,9 @@ def run(args: argparse.Namespace) -> int:
         out.check()
     except OutputError as error:
         return _exits.error_line(_COMMAND, str(error))
+    if args.length is not None and not (math.isfinite(args.length) and args.length > 0):
+        return _exits.error_line(_COMMAND, f"--length must be a positive number of metres, "
+                                 f"got {args.length:g}")
     try:
         from fitting.study import GlobalModel, global_fit, two_stage_law
 
@@ -184,8 +216,10 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         return _exits.error_line(_COMMAND, f"{args.table}: {error}")
     from fitting.data import first_non_finite
+    from fitting.study.global_fit import curve_physical_quantities
 
-    record = _to_dict(result, two_stage)
+    physical = curve_physical_quantities(result, args.length)
+    record = _to_dict(result, two_stage, physical)
     where = first_non_finite(record)
     if where is not None:
         return _exits.error_line(_COMMAND, f"{args.table}: the {spec.model} fit with "
@@ -194,13 +228,19 @@ def run(args: argparse.Namespace) -> int:
     print(result.report())
     for estimate in two_stage:
         print(estimate.report(result.units))
-    table = result.table()
+    table = _table(result, physical)
     names = list(spec.fitted)
     labels = [f"{n} ({result.units[n]})" if result.units.get(n) else n for n in names]
     print(f"\n{'curve':<12} " + " ".join(f"{label:>16} {'se':>9}" for label in labels))
     for i, curve in enumerate(table["curve"]):
         print(f"{curve:<12} " + " ".join(f"{table[n][i]:>16.5g} {table[n + '_stderr'][i]:>9.3g}"
                                          for n in names))
+    if "velocity_m_per_s" in table:
+        print(f"\n{'curve':<12} {'v (m/s)':>16} {'se':>9} {'D_z (m^2/s)':>16} {'se':>9}")
+        for i, curve in enumerate(table["curve"]):
+            print(f"{curve:<12} " + " ".join(
+                f"{_cell(table[k][i], '16.5g')} {_cell(table[k + '_stderr'][i], '9.3g')}"
+                for k in _PHYSICAL))
     for path in out.commit({"global-fit.json": json_text(record),
                             "curves.csv": csv_text(list(table),
                                                    list(zip(*table.values(), strict=True)))}):

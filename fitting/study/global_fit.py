@@ -84,6 +84,7 @@ from fitting.fit import fit_many
 from fitting.measurement import FREEABLE, Inlet, measured
 from fitting.models import MODELS, Model, get_model
 from fitting.parameters import Layout, Parameter, Parameters, make_layout
+from fitting.physical import PhysicalQuantity, hook_numbers, propagated_quantities
 from fitting.result import FitResult
 from fitting.solve import (
     CONVERGED,
@@ -100,6 +101,7 @@ from fitting.uncertainty import gauss_newton_uncertainty, interval, t_quantile
 
 __all__ = [
     "LAW_TRANSFORMS",
+    "curve_physical_quantities",
     "WEIGHTINGS",
     "FactorLaw",
     "GlobalFitResult",
@@ -812,6 +814,63 @@ class GlobalFitResult:
                 lines.append(f"shared {name} = {self.values[name]:.6g} {self.units[name]} "
                              f"± {self.stderr[name]:.3g} (95 %: {low:.6g} to {high:.6g})")
         return "\n".join(lines)
+
+
+def curve_physical_quantities(result: GlobalFitResult, length_m: float | None
+                              ) -> list[dict[str, PhysicalQuantity]]:
+    """Each curve's physical quantities (the model's equivalent ADM: ``tau``, ``peclet``,
+    and with a length the velocity and axial dispersion in SI units) from the global fit,
+    with standard errors and 95 % intervals by the delta method over the one joint
+    covariance (a law's parameters carry the laws' uncertainty, shared ones theirs).
+
+    **Arguments:** `result`, a :class:`GlobalFitResult`; `length_m`, the blender length (m)
+    or ``None`` (then no velocity and dispersion; there is no default length).
+
+    **Returns:** per curve, in order, ``{key: PhysicalQuantity}`` (keys as in
+    :func:`fitting.physical.physical_quantities`); empty dicts for a model without an
+    equivalent ADM.
+    """
+    spec = result.spec
+    model = spec.curve_model
+    count = len(result.curve_names)
+    if model.equivalent_adm is None:
+        return [{} for _ in range(count)]
+    time_unit = result.first[0].time_unit if result.first else "s"
+    defaults = model.defaults
+    designs = {law.parameter: law.design(result.factors) for law in spec.laws}
+    settings = {}
+    for name in result.names:
+        stem = name.split("[", 1)[0] if "[" in name else name
+        base = defaults[stem] if stem in defaults else None
+        settings[name] = Parameter(result.values[name],
+                                   min=None if base is None else base.min)
+    covariance = np.asarray(result.covariance, float)
+
+    def curve_values(joint: dict, i: int) -> dict[str, float]:
+        values = {}
+        for name in model.parameter_names:
+            law = spec.law_of(name)
+            if law is not None:
+                coefficients = np.array([joint[c] for c in law.coefficient_names])
+                values[name] = float(law.apply(designs[name][i] @ coefficients))
+            elif name in spec.shared:
+                values[name] = joint[name]
+            elif name in spec.per_curve:
+                values[name] = joint[_curve_name(name, i)]
+            else:
+                values[name] = defaults[name].value
+        return values
+
+    quantities = []
+    for i in range(count):
+        def evaluate(changes, i=i):
+            joint = {**result.values, **changes}
+            return hook_numbers(model.equivalent_adm(curve_values(joint, i), length_m,
+                                                     time_unit))
+
+        quantities.append(propagated_quantities(evaluate, dict(result.values), settings,
+                                                covariance, result.dof, time_unit))
+    return quantities
 
 
 def _units(spec: GlobalModel, curves: Sequence[Curve], names: Sequence[str],
