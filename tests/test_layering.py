@@ -41,6 +41,7 @@ FITTING_LAYERS = (
     "fitting.report",
     "fitting.study.batch",  # renders each curve through fitting.report
     "fitting.study.ensemble",
+    "fitting.cli._outputs",  # the output convention every sub-command writes by
     "fitting.cli.anova",
     "fitting.cli.fit",
     "fitting.cli.simulate",

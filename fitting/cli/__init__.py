@@ -23,7 +23,7 @@ import threading
 from types import ModuleType
 
 from fitting import drawing
-from fitting.cli import _outputs
+from fitting.cli._outputs import register_guard
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
@@ -250,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
         drawing.start_worker()
     in_main = threading.current_thread() is threading.main_thread()
     guard = _InterruptGuard(command) if in_main else None
-    _outputs.register_guard(guard)
+    register_guard(guard)
     status = 1  # axialmix._exits.FAILED: an exception (a bug) is on its way out
     try:
         parser = build_parser(command) if command is not None else _listing_parser()
@@ -274,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
             guard.finish(status)
         elif guard is not None:
             guard.close()
-            _outputs.register_guard(None)
+            register_guard(None)
         if program and sys.exc_info()[0] is None:
             _end_process(status)
 
