@@ -268,3 +268,26 @@ def test_bad_input_exits_2_on_one_line_and_writes_nothing(argv, words, tmp_path,
     assert len(lines) == 1 and lines[0].startswith(f"axialmix {argv[0]}: error:")
     assert words in lines[0]
     assert not out.exists()
+
+
+@pytest.mark.parametrize("kind", ["curves", "fits"])  # a study's summary, a folder's
+def test_funnel_takes_one_curve_of_a_summary_by_curve(kind, tmp_path, capsys):
+    import copy
+
+    _, first = _fit_record(tmp_path, "tanks", {"tau": 4.0, "n_tanks": 1.0}, data="a")
+    path, second = _fit_record(tmp_path, "tanks", {"tau": 6.0, "n_tanks": 1.0}, data="b")
+    summary = tmp_path / "summary.json"
+    summary.write_text(json.dumps({kind: [first, copy.deepcopy(second)]}))
+    argv = ["funnel", "--durations", "0.5,3", "--magnitudes", "10"]
+    assert main([*argv, "--model", str(summary), "--curve", "b", "--out",
+                 str(tmp_path / "picked")]) == 0
+    assert main([*argv, "--model", str(path), "--out", str(tmp_path / "alone")]) == 0
+    capsys.readouterr()
+    picked = json.loads((tmp_path / "picked" / "funnel.json").read_text())
+    alone = json.loads((tmp_path / "alone" / "funnel.json").read_text())
+    assert picked["max_deviation"] == alone["max_deviation"]
+    assert picked["parameters"]["tau"]["value"] == 6.0
+    for extra, words in ((["--curve", "zz"], "--curve zz: no such curve"),
+                         ([], "a summary of 2 fits; choose one with --curve ID (a, b)")):
+        status, _, err = _run([*argv, "--model", str(summary), *extra], capsys)
+        assert status == 2 and words in err and len(err.strip().splitlines()) == 1, err

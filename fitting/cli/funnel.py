@@ -1,6 +1,6 @@
 """``axialmix funnel``: the funnel plot of a unit operation's RTD (largest outlet deviations).
 
-    axialmix funnel --model M [--set NAME=VALUE ...] [--time-unit s]
+    axialmix funnel --model M [--curve ID] [--set NAME=VALUE ...] [--time-unit s]
                     --durations D1,D2,... --magnitudes M1,M2,... [--magnitude-unit %]
                     [--out DIR]
 
@@ -10,7 +10,8 @@ vectorised). ``--model`` is a model name of ``axialmix fit`` (``adm``, ``adm-ope
 ``four-compartment``, ``adm-exchange``, ``tanks-exchange``, ``adm-tank``; ``adm-fv`` is the
 closed-closed ADM, evaluated exactly) with every parameter given by ``--set NAME=VALUE`` in
 ``--time-unit``, or the JSON file of a fit that ``axialmix fit`` wrote (its values and its
-time unit; ``--set`` then overrides values). The table printed and the JSON key
+time unit; ``--set`` then overrides values), or the ``summary.json`` of a folder or study
+fit with ``--curve ID`` naming one of its curves. The table printed and the JSON key
 ``"max_deviation"`` have one row per magnitude and one column per duration; the JSON states
 the durations, magnitudes and their units. ``--out DIR`` writes
 ``DIR/funnel.json`` and the plot ``DIR/funnel.png`` as one result set (all or nothing; see
@@ -80,6 +81,9 @@ def add_model_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--time-unit", default=None,
                         help="unit of time of the parameters and durations (default s, or the "
                         "fit's)")
+    parser.add_argument("--curve", default=None, metavar="ID",
+                        help="the curve to use when --model is the summary.json of several fits "
+                        "(a folder or a study that axialmix fit wrote)")
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -193,6 +197,28 @@ def _covariance(record: Mapping[str, Any], free: Sequence[str], source: str) -> 
     return covariance
 
 
+def _chosen_record(record: Any, curve: str | None, source: str) -> Any:
+    """The fit record of `curve` in a summary (``"fits"`` of a folder, ``"curves"`` of a
+    study), or `record` itself when it is one fit. Raises :class:`OptionError`."""
+    fits = record.get("fits", record.get("curves")) if isinstance(record, Mapping) else None
+    if not isinstance(fits, list):
+        if curve is not None and isinstance(record, Mapping) and record.get("data") != curve:
+            raise OptionError(f"--curve {curve}: {source} is the fit of "
+                              f"{record.get('data')!r} only")
+        return record
+    names = [f.get("data") for f in fits if isinstance(f, Mapping)]
+    if curve is None:
+        if len(fits) == 1:
+            return fits[0]
+        shown = ", ".join(str(n) for n in names[:5]) + (", ..." if len(names) > 5 else "")
+        raise OptionError(f"--model {source}: a summary of {len(fits)} fits; choose one with "
+                          f"--curve ID ({shown})")
+    for fit in fits:
+        if isinstance(fit, Mapping) and fit.get("data") == curve:
+            return fit
+    raise OptionError(f"--curve {curve}: no such curve in {source} ({len(fits)} fits)")
+
+
 def fitted_rtd(record: Mapping[str, Any], overrides: Mapping[str, float] | None = None, *,
                source: str = "fit"):
     """An :class:`axialmix.line.FittedRTD` from the JSON record ``axialmix fit`` writes.
@@ -293,6 +319,7 @@ def rtd_from_options(args: argparse.Namespace):
             record = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
             raise OptionError(f"{model}: cannot be read as JSON ({error})") from None
+        record = _chosen_record(record, getattr(args, "curve", None), str(path))
         fitted, model = fitted_rtd(record, overrides, source=str(path))
         if args.time_unit is not None and args.time_unit != fitted.time_unit:
             raise OptionError(f"--time-unit {args.time_unit}: the fit {path} is in "
@@ -301,6 +328,8 @@ def rtd_from_options(args: argparse.Namespace):
     else:
         raise OptionError(f"--model {model}: no such model or file (models: "
                           + ", ".join(LINE_MODELS) + ")")
+    if source is None and getattr(args, "curve", None) is not None:
+        raise OptionError("--curve picks a curve of a summary.json given to --model")
     _check_ranges(fitted, "--set" if source is None else source, overrides)
     errors = dict(zip(fitted.free, [float(e) for e in fitted.standard_errors], strict=True))
     description = {
