@@ -291,6 +291,8 @@ def user_cache_folder() -> Path:
     return Path(base) / "axialmix"
 
 
+#: The environment variable that turns the on-disk caches off (``off``).
+CACHE_SWITCH = "AXIALMIX_COMPILATION_CACHE"
 #: Size bound of the compilation cache (bytes); the least recently used entries go first.
 COMPILATION_CACHE_BYTES = 2 * 1024**3
 #: Folder of exported programs once :func:`enable_compilation_cache` has run (``None``: off).
@@ -310,9 +312,16 @@ def enable_compilation_cache(folder: str | Path | None = None, exports: bool = T
       files in ``solvers`` in :func:`user_cache_folder`, so a later process loads them instead
       of tracing them (tracing is never cached by JAX itself).
 
-    **Returns:** the compilation-cache folder (left unused when it cannot be created).
+    The environment variable ``AXIALMIX_COMPILATION_CACHE=off`` (or ``0``, ``no``,
+    ``false``) turns both off: every run then traces and compiles afresh.
+
+    **Returns:** the compilation-cache folder (left unused when it cannot be created or the
+    cache is turned off).
     """
     global _EXPORT_FOLDER
+    if os.environ.get(CACHE_SWITCH, "").strip().lower() in ("off", "0", "no", "false"):
+        return Path(folder or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+                    or user_cache_folder() / "jax")
     if folder is None:
         folder = os.environ.get("JAX_COMPILATION_CACHE_DIR")
     if folder is None:

@@ -13,6 +13,12 @@ import axialmix  # noqa: F401  (float64 for every test)
 _CACHE = tempfile.mkdtemp(prefix=f"axialmix-tests-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-")
 os.environ["XDG_CACHE_HOME"] = _CACHE
 os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
+# ... and by default none at all: in a test process that has compiled hundreds of programs,
+# jaxlib's serialisation of an executable into the cache (and its deserialisation) has
+# crashed the process (a segmentation fault inside XLA, seen twice, in different tests).
+# Runs with the cache on are tested by tests/test_compilation_cache.py, in processes of
+# their own. AXIALMIX_COMPILATION_CACHE=on in the environment keeps it on.
+os.environ.setdefault("AXIALMIX_COMPILATION_CACHE", "off")
 
 
 def pytest_unconfigure(config):

@@ -30,7 +30,8 @@ def _run(folder, count, env):
 
 
 def test_processes_sharing_the_cache_agree_and_the_cache_is_locked(tmp_path):
-    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "home")}
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "home"),
+           "AXIALMIX_COMPILATION_CACHE": "on"}
     folder = tmp_path / "jax"
     # Two processes compile and write the same entries at the same time, then a third reads
     # them all back: every process gives the same sums as a cache-free computation would.
@@ -50,7 +51,8 @@ def test_processes_sharing_the_cache_agree_and_the_cache_is_locked(tmp_path):
 
 def test_a_cache_written_without_a_bound_is_taken_over(tmp_path):
     # An older cache folder: entries without access-time files (JAX's unbounded cache).
-    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "home")}
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "home"),
+           "AXIALMIX_COMPILATION_CACHE": "on"}
     folder = tmp_path / "jax"
     old = subprocess.run([sys.executable, "-c", textwrap.dedent(f"""
         import jax, jax.numpy as jnp
@@ -68,3 +70,14 @@ def test_a_cache_written_without_a_bound_is_taken_over(tmp_path):
     entries = list(folder.glob("*-cache"))
     assert len(entries) >= 4 and all(e.with_name(e.name[:-5] + "atime").exists()
                                      for e in entries)
+
+
+def test_the_cache_can_be_turned_off(tmp_path):
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "home"),
+           "AXIALMIX_COMPILATION_CACHE": "off"}
+    program = _PROGRAM.replace(
+        "assert jax.config.jax_compilation_cache_max_size == COMPILATION_CACHE_BYTES", "")
+    done = subprocess.run([sys.executable, "-c", program, str(tmp_path / "jax"), "2"],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert not (tmp_path / "jax").exists() and not (tmp_path / "home").exists()
