@@ -83,7 +83,8 @@ def test_fit_each_example_file_prints_table_and_writes_json_and_png(path, tmp_pa
     # The table shows the same value as the record.
     assert f"{record['parameters']['k_f']['value']:.6g}" in captured.out
     _check_png(out / f"{path.stem}.png")
-    assert sorted(p.name for p in out.iterdir()) == [f"{path.stem}.json", f"{path.stem}.png"]
+    assert sorted(p.name for p in out.iterdir()) == [f"{path.stem}.json", f"{path.stem}.png",
+                                                     "summary.csv", "summary.json"]
 
 
 def test_fit_with_grid_shows_both_side_by_side(tmp_path, capsys):
