@@ -133,6 +133,8 @@ def _table(result, physical) -> dict[str, list]:
         if not physical or key not in physical[0]:
             continue
         entries = [quantities[key] for quantities in physical]
+        if all(e.value is None for e in entries):  # no --length: the hook gives no v, D_z
+            continue
         table[key] = [e.value for e in entries]
         table[f"{key}_stderr"] = [e.stderr for e in entries]
         table[f"{key}_low"] = [None if e.ci95 is None else e.ci95[0] for e in entries]
