@@ -225,14 +225,8 @@ def study_table(rows: Sequence[Mapping[str, Any]], factors: Sequence[str]
     - `rows`: per curve ``{"curve": id, "levels": [factor text...], "record": fit record}``.
     - `factors`: the factor names.
 
-    **Returns:** ``(header, rows)``. Columns: ``curve``, the factors (as written), ``model``,
-    ``n_points``, each fitted parameter's value, standard error and 95 % interval
-    (``tau [s]``, ``tau_stderr [s]``, ``tau_ci95_low [s]``, ``tau_ci95_high [s]``: units in
-    brackets, none for dimensionless ones), the same for physical quantities that are not
-    parameters (``velocity [m/s]``, ``dispersion [m^2/s]``, a network's equivalent ``tau [s]`` and
-    ``peclet``), then
-    the error model, convergence and its message, the lack-of-fit verdict and its tests,
-    loss, evaluations and wall time.
+    **Returns:** ``(header, rows)`` in the one summary schema of
+    :func:`fitting.report.summary_rows`.
     """
     return summary_rows([row["record"] for row in rows], factors,
                         curves=[row["curve"] for row in rows],
