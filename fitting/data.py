@@ -20,6 +20,14 @@ Format accepted:
   unit, when the header gives one (``c [g/L]``), is kept as ``Curve.value_unit``.
 * Decimal commas (``0,25`` in a file whose cells are separated by ``;``, tabs or spaces) are
   detected by default (``decimal="auto"``), or forced with ``decimal=","``.
+* Counts. A column named ``count`` (``counts``, ``particles``; a histogram of particles
+  leaving, as ``axialmix simulate`` writes it) makes the file a counting curve: the value
+  is the count divided by its bin width (particles per time unit) and :attr:`Curve.exposure`
+  holds the widths, so ``value × exposure`` is the count and the fit's error model is
+  Poisson (:class:`fitting.losses.CountingErrors`). The widths come from a column ``bin``
+  (``bin_width``, ``width``; its unit from its header, else the time column's), or else from
+  the spacing of the times (the first bin as wide as the second). Counts must be whole and
+  non-negative; a baseline cannot be subtracted from them.
 * Real data are not bad input. Values below zero, detector noise around a subtracted
   baseline, are kept down to the limit the curve's own noise sets (:func:`negative_limit`:
   6 robustly estimated noise standard deviations, at least 5 % and at most 25 % of the
@@ -48,7 +56,8 @@ from axialmix._csv import Column, DataError, Table, read_table
 
 __all__ = ["MAX_NEGATIVE_FRACTION", "NEGATIVE_FRACTION", "NOISE_SIGMAS", "TIME_UNIT_SECONDS",
            "Curve", "DataError", "DataWarning",
-           "as_curve", "column_time_unit", "curve_columns", "first_non_finite", "input_files",
+           "as_curve", "column_time_unit", "counting_columns", "curve_columns",
+           "first_non_finite", "input_files",
            "read_inlet_csv",
            "negative_limit", "noise_level", "read_many", "read_rtd_csv", "seconds_per",
            "validated_curve"]
@@ -74,6 +83,9 @@ _VALUE_NAMES = {
     "value", "values", "signal", "tracer", "y", "intensity", "absorbance", "response",
     "mass_fraction", "fraction", "api", "c(t)", "ct",
 }
+#: Column names of particle counts and of their bin widths (counting curves).
+_COUNT_NAMES = {"count", "counts", "particles", "particle_count", "particle_counts"}
+_BIN_NAMES = {"bin", "bins", "bin_width", "width", "bin_s"}
 _TIME_UNITS = {
     "s": "s", "sec": "s", "secs": "s", "second": "s", "seconds": "s",
     "ms": "ms", "millisecond": "ms", "milliseconds": "ms",
@@ -179,6 +191,9 @@ class Curve:
       when it gives none.
     - `normalised`: whether `value` was divided by its own trapezoid area (then it is E in
       1/`time_unit` and `value_unit` no longer applies).
+    - `exposure`: for counts, shape ``(n,)``: ``value × exposure`` is the number of
+      particles counted at each point (a histogram's bin widths in `time_unit`, times the
+      area when normalised), whose noise is Poisson; ``None`` for a measured signal.
     """
 
     name: str
@@ -188,6 +203,7 @@ class Curve:
     source: str | None = None
     value_unit: str | None = None
     normalised: bool = False
+    exposure: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         time = np.array(self.time, dtype=float)
@@ -198,6 +214,14 @@ class Curve:
                 f"{time.shape} and {value.shape}"
             )
         seconds_per(self.time_unit)
+        if self.exposure is not None:
+            exposure = np.array(self.exposure, dtype=float)
+            if exposure.shape != time.shape or not np.all(np.isfinite(exposure)) or np.any(
+                    exposure < 0):
+                raise ValueError(f"curve {self.name!r}: exposure must be finite, non-negative "
+                                 f"and of the times' shape {time.shape}")
+            exposure.flags.writeable = False
+            object.__setattr__(self, "exposure", exposure)
         time.flags.writeable = False
         value.flags.writeable = False
         object.__setattr__(self, "time", time)
@@ -331,10 +355,18 @@ def read_rtd_csv(
             isinstance(baseline, int | float) and not isinstance(baseline, bool))):
         raise ValueError(f"baseline must be None, 'first', 'min' or a number, got {baseline!r}")
     table = read_table(path, decimal=decimal, suffix_units=tuple(_TIME_UNITS))
-    time_col, value_col = curve_columns(table, time_column, value_column)
+
+    def columns_of(table):
+        counting = counting_columns(table, time_column, value_column)
+        if counting is not None:
+            return counting
+        return (*curve_columns(table, time_column, value_column), None)
+
+    time_col, value_col, bin_col = columns_of(table)
     time_unit = column_time_unit(table, time_col)
+    wanted = [time_col.index, value_col.index] + ([bin_col.index] if bin_col else [])
     try:
-        rows, data = table.numbers([time_col.index, value_col.index])
+        rows, data = table.numbers(wanted)
     except DataError as error:
         # Detection looks at the first data row only; a first row without decimals ("0;0")
         # leaves decimal commas further down undetected, so read once more with them.
@@ -342,12 +374,91 @@ def read_rtd_csv(
                 and error.problem.startswith("non-numeric cell") and "," in error.problem):
             raise
         table = read_table(path, decimal=",", suffix_units=tuple(_TIME_UNITS))
-        time_col, value_col = curve_columns(table, time_column, value_column)
-        rows, data = table.numbers([time_col.index, value_col.index])
-    return validated_curve(path, rows, data[:, 0], data[:, 1], time_unit=time_unit,
-                           value_unit=value_col.unit, name=name if name is not None else
-                           path.stem, baseline=baseline, normalise=normalise,
-                           min_points=min_points, on_truncated=on_truncated)
+        time_col, value_col, bin_col = columns_of(table)
+        wanted = [time_col.index, value_col.index] + ([bin_col.index] if bin_col else [])
+        rows, data = table.numbers(wanted)
+    label = name if name is not None else path.stem
+    if value_col.name not in _COUNT_NAMES:
+        return validated_curve(path, rows, data[:, 0], data[:, 1], time_unit=time_unit,
+                               value_unit=value_col.unit, name=label, baseline=baseline,
+                               normalise=normalise, min_points=min_points,
+                               on_truncated=on_truncated)
+    if baseline is not None:
+        raise DataError(path, f"column {value_col.label!r} holds counts: a baseline cannot be "
+                        "subtracted from them")
+    time, counts = data[:, 0], data[:, 1]
+    bad = _first((counts < 0) | (counts != np.rint(counts)))
+    if bad is not None:
+        raise DataError(path, f"count {counts[bad]:g} in column {value_col.label!r} is not a "
+                        "whole number of particles at least 0", int(rows[bad]))
+    if bin_col is not None:
+        width = data[:, 2] * _bin_unit_factor(table, bin_col, time_unit)
+        bad = _first(~(width > 0))
+        if bad is not None:
+            raise DataError(path, f"bin width {data[bad, 2]:g} in column {bin_col.label!r} is "
+                            "not positive", int(rows[bad]))
+    elif time.size >= 2:
+        steps = np.diff(time)
+        width = np.concatenate([steps[:1], steps])
+        if np.any(steps <= 0):  # validated_curve names the row
+            width = np.ones_like(time)
+    else:
+        width = np.ones_like(time)
+    return validated_curve(path, rows, time, counts / width, time_unit=time_unit,
+                           value_unit=f"particles/{time_unit}", name=label,
+                           normalise=normalise, min_points=min_points,
+                           on_truncated=on_truncated, exposure=width)
+
+
+def counting_columns(table: Table, time_column: str | int | None = None,
+                     value_column: str | int | None = None
+                     ) -> tuple[Column, Column, Column | None] | None:
+    """The time, count and bin-width columns of a counting table, or ``None`` for a signal.
+
+    A table is a counting one when its value column (`value_column`, or, when that is not
+    given, the one column named as a count: ``count``, ``counts``, ``particles``) holds
+    counts; the bin widths are the column named ``bin`` (``bin_width``, ``width``) if any.
+
+    **Arguments:** as :func:`curve_columns`.
+
+    **Returns:** ``(time, count, bin or None)``, or ``None`` when the values are no counts.
+    """
+    if value_column is not None:
+        value = _pick_column(table, value_column, set(), "value")
+        if value.name not in _COUNT_NAMES:
+            return None
+    else:
+        found = [c for c in table.columns if c.name in _COUNT_NAMES]
+        if not found:
+            return None
+        if len(found) > 1:
+            listed = ", ".join(repr(c.label) for c in found)
+            raise table.error(f"several count columns ({listed}); choose one with "
+                              "value_column (--value-column)")
+        value = found[0]
+    time = _pick_column(table, time_column, _TIME_NAMES, "time")
+    if time is None:
+        time = table.columns[0] if value.index != 0 else None
+    if time is None or time.index == value.index:
+        raise table.error(f"missing time column beside the counts {value.label!r}; name it "
+                          "'t' or 'time', or choose it with time_column (--time-column)")
+    bins = [c for c in table.columns if c.name in _BIN_NAMES
+            and c.index not in (time.index, value.index)]
+    if len(bins) > 1:
+        listed = ", ".join(repr(c.label) for c in bins)
+        raise table.error(f"several bin-width columns ({listed}); keep one")
+    return time, value, bins[0] if bins else None
+
+
+def _bin_unit_factor(table: Table, column: Column, time_unit: str) -> float:
+    """Time units (of the time column) in one unit of a bin-width column."""
+    if column.unit is None:
+        return 1.0
+    unit = _TIME_UNITS.get(column.unit.lower())
+    if unit is None:
+        raise table.error(f"unknown time unit {column.unit!r} in {column.label!r} "
+                          "(known: s, ms, min, h)")
+    return seconds_per(unit) / seconds_per(time_unit)
 
 
 def column_time_unit(table: Table, column: Column) -> str:
@@ -384,6 +495,7 @@ def validated_curve(
     normalise: bool = True,
     min_points: int = 5,
     on_truncated: str = "warn",
+    exposure: np.ndarray | None = None,
 ) -> Curve:
     """Check the samples of one curve read from a file and make them a :class:`Curve`.
 
@@ -398,6 +510,8 @@ def validated_curve(
     - `time_unit`, `value_unit`: their units (`value_unit` ``None`` when unknown).
     - `name`: the curve's label (default: the file name without extension).
     - `baseline`, `normalise`, `min_points`, `on_truncated`: as in :func:`read_rtd_csv`.
+    - `exposure`: for counts, ``value × exposure`` the count at each point (see
+      :class:`Curve`); ``None`` for a signal.
 
     **Returns:** the :class:`Curve`; :class:`DataError` naming file and row for bad samples.
     """
@@ -476,6 +590,8 @@ def validated_curve(
     if normalise:
         # Divide by the peak first, so that neither the area nor E under- or overflows.
         value = (value / peak) / (area / peak)
+        if exposure is not None:
+            exposure = np.asarray(exposure, float) * area
         if not np.all(np.isfinite(value)):
             raise DataError(path, "normalising the curve overflows (the sampled time span is "
                             "too short for its values); rescale the columns")
@@ -487,6 +603,7 @@ def validated_curve(
         source=str(path),
         value_unit=None if normalise else value_unit,
         normalised=bool(normalise),
+        exposure=exposure,
     )
 
 

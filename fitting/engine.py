@@ -7,7 +7,7 @@ is built from. Inside it, ``vmap`` over the curves of:
 1. every start (``vmap`` over starts) of the single-start solver of :mod:`fitting.solve`,
    the start with the lowest finite loss kept, and its Gauss–Newton check (the status rules
    of :class:`fitting.solve.MultiStartSolver`) — the *first fit*;
-2. the error model's passes (relative, or additive plus proportional errors): the weights
+2. the error model's passes (relative, additive plus proportional, or counting errors): the weights
    made from the last pass's model curve (and, for combined errors, its residuals and
    leverages, :func:`combined_errors`), a refit from the last pass's end, until the fitted
    values change by at most the model's ``change`` or ``max_passes`` fits were made — a
@@ -63,8 +63,10 @@ __all__ = ["CHUNK", "LANES", "ErrorPlan", "chunk_program", "chunk_shape", "combi
 class ErrorPlan:
     """The static error model of a compiled chunk fit (hashable).
 
-    ``kind``: ``'absolute'`` (one fit), ``'relative'`` (weights ``1 / max(|m|, floor·peak)²``)
-    or ``'combined'`` (weights ``1 / (a² + (b m)²)``, ``a`` and ``b`` estimated each pass);
+    ``kind``: ``'absolute'`` (one fit), ``'relative'`` (weights ``1 / max(|m|, floor·peak)²``),
+    ``'combined'`` (weights ``1 / (a² + (b m)²)``, ``a`` and ``b`` estimated each pass) or
+    ``'poisson'`` (counts: weights ``x / max(m, floor·peak)``, ``x`` the exposure given as
+    the curve's weights, which also weight its first fit);
     ``max_passes``: most fits in all; ``change``: relative change of every fitted value
     between passes at which the passes stop; ``floor``: of the relative weights.
     """
@@ -284,6 +286,13 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
             """The next pass's weights from a finished fit with weights `w`; its error
             sizes; whether to go on (not for an exact fit under combined errors)."""
             predicted = record["predicted"]
+            if errors.kind == "poisson":
+                # Counts: Var(y) = m / x with the exposure x the curve came with (its
+                # first weights); the fixed point is the Poisson maximum-likelihood fit.
+                peak = jnp.maximum(jnp.max(jnp.where(real, jnp.abs(predicted), 0.0)), 1e-300)
+                magnitude = jnp.maximum(predicted, errors.floor * peak)
+                return (jnp.where(real, weights / magnitude, 0.0), jnp.zeros(2),
+                        jnp.asarray(True))
             if errors.kind == "relative":
                 magnitude = jnp.abs(predicted)
                 peak = jnp.maximum(jnp.max(jnp.where(real, magnitude, 0.0)), 1e-300)

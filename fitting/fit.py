@@ -49,10 +49,13 @@ from fitting.engine import ErrorPlan, fit_chunk_arrays
 from fitting.losses import (
     ERROR_KINDS,
     CombinedErrors,
+    CountingErrors,
     ErrorEstimate,
     combined_weights,
+    counting_weights,
     estimate_combined_errors,
     leverages,
+    poisson_log_likelihood,
 )
 from fitting.models import Model, get_model
 from fitting.parameters import Layout, Parameter, Parameters, clip_into_bounds, make_layout
@@ -139,25 +142,29 @@ def settings_from_keywords(loss: str = "sse", optimiser: Optimiser | None = None
 
 
 def with_error_model(settings: FitSettings,
-                     errors: str | RelativeErrors | CombinedErrors | None) -> FitSettings:
+                     errors: str | RelativeErrors | CombinedErrors | CountingErrors | None,
+                     ) -> FitSettings:
     """`settings` with the error model `errors`: ``None`` keeps them as they are;
-    ``"absolute"``, ``"relative"`` or ``"combined"`` (or the settings of the last two)."""
+    ``"absolute"``, ``"relative"``, ``"combined"`` or ``"poisson"`` (or the settings of the
+    last three)."""
     if errors is None:
         return settings
     if isinstance(errors, str):
         if errors not in ERROR_KINDS:
             raise ValueError(f"errors must be one of {', '.join(ERROR_KINDS)}, got {errors!r}")
         errors = {"absolute": None, "relative": RelativeErrors(),
-                  "combined": CombinedErrors()}[errors]
-    if errors is not None and not isinstance(errors, RelativeErrors | CombinedErrors):
-        raise ValueError(f"errors must be a name, RelativeErrors or CombinedErrors, got "
-                         f"{type(errors).__name__}")
+                  "combined": CombinedErrors(), "poisson": CountingErrors()}[errors]
+    if errors is not None and not isinstance(errors,
+                                             RelativeErrors | CombinedErrors | CountingErrors):
+        raise ValueError(f"errors must be a name, RelativeErrors, CombinedErrors or "
+                         f"CountingErrors, got {type(errors).__name__}")
     if settings.relative_errors is not None and not isinstance(errors, RelativeErrors):
         raise ValueError("give the error model once: errors or relative_errors")
     return dataclasses.replace(
         settings,
         relative_errors=errors if isinstance(errors, RelativeErrors) else None,
-        combined_errors=errors if isinstance(errors, CombinedErrors) else None)
+        combined_errors=errors if isinstance(errors, CombinedErrors) else None,
+        counting_errors=errors if isinstance(errors, CountingErrors) else None)
 
 
 def _fields(module) -> dict[str, Any]:
@@ -421,7 +428,24 @@ def _error_plan(settings: FitSettings) -> ErrorPlan:
         relative = settings.relative_errors
         return ErrorPlan("relative", relative.max_passes, float(relative.change),
                          float(relative.floor))
+    if settings.counting_errors is not None:
+        counting = settings.counting_errors
+        return ErrorPlan("poisson", counting.max_passes, float(counting.change),
+                         float(counting.floor))
     return ErrorPlan()
+
+
+def _exposures(curves: Sequence[Curve]) -> list[np.ndarray]:
+    """Each curve's exposure (counts per unit value; ones where a curve gives none)."""
+    return [c.exposure if c.exposure is not None else np.ones(len(c)) for c in curves]
+
+
+def _reweighting(settings: FitSettings) -> str | None:
+    """The settings' error model that sets the weights itself, by its keyword (or None)."""
+    for name in ("combined_errors", "relative_errors", "counting_errors"):
+        if getattr(settings, name) is not None:
+            return name
+    return None
 
 
 def _prepare_batch(model, curves, params, weights, settings: FitSettings) -> list[Prepared]:
@@ -457,11 +481,8 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
     """Fit curves with the batched engine (:mod:`fitting.engine`): the curves of each padded
     length in one compiled call; curves the engine flags for polishing by the multi-start
     solver's path."""
-    if (settings.combined_errors is not None or settings.relative_errors is not None) and (
-            weights is not None):
-        raise ValueError("the combined error model sets the weights itself; pass weights=None"
-                         if settings.combined_errors is not None else
-                         "relative_errors sets the weights itself; pass weights=None")
+    if _reweighting(settings) is not None and weights is not None:
+        raise ValueError(f"{_reweighting(settings)} sets the weights itself; pass weights=None")
     curves = [as_curve(c) for c in curves]
     if not curves:
         raise ValueError("fit_many needs at least one curve")
@@ -469,7 +490,10 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
     if options.method != "lm":
         # L-BFGS and Adam (the mean absolute error): each start on its own.
         return _fit_polished(model, curves, params, weights, settings)
-    prepared = _prepare_batch(model, curves, params, weights, settings)
+    counting = settings.counting_errors is not None
+    # Counts: the first fit is weighted by the exposure, which the passes' weights keep.
+    prepared = _prepare_batch(model, curves, params,
+                              _exposures(curves) if counting else weights, settings)
     if any(p.warm.any() for p in prepared):
         # Random starts, each first moved by Adam steps (the compartment networks' default
         # of 8 starts): inside the chunk program the warm-up ran 30-45 times slower than in
@@ -499,7 +523,7 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
         for row, i in enumerate(members):
             lane = jax.tree.map(lambda a, row=row: a[row], out)
             result = _engine_result(prepared[i], lane, options, errors, settings, share,
-                                    compile_share, weights is not None)
+                                    compile_share, weights is not None or counting)
             if result is None:
                 polish.append(i)
             else:
@@ -531,12 +555,14 @@ def _engine_result(prepared: Prepared, lane: dict, options: SolverPlan, errors: 
         return None
     n = len(prepared.curve)
     layout = prepared.layout
-    plain = dataclasses.replace(settings, relative_errors=None, combined_errors=None)
+    plain = dataclasses.replace(settings, relative_errors=None, combined_errors=None,
+        counting_errors=None)
     first = _result(prepared, layout, options, _lane_output(lane["first"], n), wall,
                     compile_time, plain if errors.kind != "absolute" else settings)
     if errors.kind == "absolute":
         return first if weighted else _with_absolute_errors(first)
-    first = _with_absolute_errors(first)
+    if errors.kind != "poisson":
+        first = _with_absolute_errors(first)
     if errors.kind == "combined" and first.lack_of_fit.systematic:
         return _kept_unweighted(first, settings)
     if bool(lane["polish_passes"]):
@@ -549,6 +575,11 @@ def _engine_result(prepared: Prepared, lane: dict, options: SolverPlan, errors: 
     reweighted = dataclasses.replace(prepared, weights=np.asarray(lane["weights"])[:n])
     single = dataclasses.replace(options, warmup_steps=0)
     final = _result(reweighted, layout, single, final_out, wall, compile_time, settings)
+    if errors.kind == "poisson":
+        final = dataclasses.replace(final, n_starts=first.n_starts,
+                                    init_params=first.init_params,
+                                    start_losses=first.start_losses)
+        return _with_counting_errors(final, passes)
     if errors.kind == "relative":
         method = ("relative errors: reweighted by 1/model^2 until consistent "
                   f"({passes} passes)")
@@ -602,6 +633,13 @@ def _fit_polished(model, curves, params, weights, settings: FitSettings) -> list
         plain = dataclasses.replace(settings, relative_errors=None)
         first = _fit_polished(model, curves, params, None, plain)
         return _refit_with_relative_errors(model, curves, first, settings)
+    if settings.counting_errors is not None:
+        if weights is not None:
+            raise ValueError("counting_errors sets the weights itself; pass weights=None")
+        curves = [as_curve(c) for c in curves]
+        plain = dataclasses.replace(settings, counting_errors=None)
+        first = _fit_polished(model, curves, params, _exposures(curves), plain)
+        return _refit_with_counting_errors(model, curves, first, settings)
     curves = [as_curve(c) for c in curves]
     if not curves:
         raise ValueError("fit_many needs at least one curve")
@@ -702,6 +740,7 @@ def _reweighted_passes(model, curves: Sequence[Curve], first: Sequence[FitResult
     compile_time = np.array([r.compile_time for r in first])
     single = dataclasses.replace(
         settings, relative_errors=None, combined_errors=None,
+        counting_errors=None,
         multistart=MultiStart(n_starts=1, seed=settings.multistart.seed,
                               warmup_steps=settings.multistart.warmup_steps))
     for _ in range(max_passes - 1):
@@ -735,6 +774,59 @@ def _refit_with_relative_errors(model, curves: Sequence[Curve], first: Sequence[
     return [dataclasses.replace(r, error_model=ErrorEstimate("relative", 0.0, r.sigma,
                                                              passes.count))
             for r in finished]
+
+
+def _refit_with_counting_errors(model, curves: Sequence[Curve], first: Sequence[FitResult],
+                                settings: FitSettings) -> list[FitResult]:
+    """Iterated weights ``x / m`` for counts (Poisson errors), from each pass's model curve,
+    until the fitted values stop changing: the Poisson maximum-likelihood fit."""
+    counting = settings.counting_errors
+    exposures = _exposures(curves)
+    passes = _reweighted_passes(
+        model, curves, first, settings, counting.max_passes, counting.change,
+        lambda results: [counting_weights(r.predicted, x, counting.floor)
+                         for r, x in zip(results, exposures, strict=True)])
+    method = f"{_COUNTING_METHOD} ({passes.count} passes)"
+    return [_with_counting_errors(r, passes.count)
+            for r in passes.finished(first, settings, method)]
+
+
+_COUNTING_METHOD = ("counting (Poisson) errors: reweighted by exposure/model until consistent, "
+                    "the maximum-likelihood fit")
+
+
+def _with_counting_errors(result: FitResult, passes: int) -> FitResult:
+    """A fit to counts with the known Poisson scale: standard errors and covariance from
+    ``(Jᵀ W J)⁻¹`` with ``W = x / m`` (not rescaled by the residuals), 95 % intervals from
+    the normal quantile, AIC and BIC from the Poisson likelihood; the Pearson dispersion
+    ``Σ w r² / dof`` (1 expected) is kept in the error model as a check."""
+    sigma = result.sigma
+    method = result.method if _COUNTING_METHOD in result.method else (
+        f"{result.method}; {_COUNTING_METHOD} ({passes} passes)")
+    dispersion = sigma**2 if sigma is not None and math.isfinite(sigma) else math.nan
+    if not (math.isfinite(dispersion) and dispersion > 0):
+        return dataclasses.replace(result, method=method,
+                                   error_model=ErrorEstimate("poisson", 0.0, dispersion, passes))
+    factor = 1.0 / sigma
+    quantile = t_quantile(math.inf)
+    stderr, ci95 = {}, {}
+    for name, error in result.stderr.items():
+        if error is None:
+            stderr[name], ci95[name] = None, None
+            continue
+        stderr[name] = error * factor
+        ci95[name] = interval(result.values[name], quantile * stderr[name],
+                               result.init_params[name])
+    exposure = result.exposure
+    log_likelihood = poisson_log_likelihood(result.observed, result.predicted, exposure)
+    n_free = len(result.free_names)
+    n_points = int(np.count_nonzero(exposure))
+    aic = -2.0 * log_likelihood + 2 * n_free
+    bic = -2.0 * log_likelihood + n_free * math.log(max(n_points, 1))
+    return dataclasses.replace(
+        result, stderr=stderr, ci95=ci95, covariance=result.covariance * factor**2,
+        aic=aic, bic=bic, method=method,
+        error_model=ErrorEstimate("poisson", 0.0, dispersion, passes))
 
 
 def _combined_estimate(result: FitResult) -> tuple[float, float]:

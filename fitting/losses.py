@@ -22,6 +22,19 @@ Error models say how large a measurement's error is, and so which weights least 
   divided by ``1 - h_i`` (its leverage) so that it is unbiased for its variance; the curve is
   fitted again with weights ``1 / (a² + (b m_i)²)``, until the fitted values stop changing.
   A point where the model is zero keeps the weight ``1/a²``: no floor is needed.
+* counting (:class:`CountingErrors`, ``errors="poisson"``): the values are particle counts
+  divided by a known *exposure* ``x_i`` (a histogram's bin width, ``Curve.exposure``), so
+  ``x_i y_i`` is a Poisson count of mean ``x_i m_i`` and ``Var(y_i) = m_i / x_i``, of known
+  size. The curve is fitted again with weights ``x_i / m_i`` from its own model curve until
+  the fitted values stop changing: the fixed point of these iterated weights solves the
+  Poisson score equations ``Σ (y_i - m_i) / m_i ∂m_i/∂θ = 0``, so it is the maximum-likelihood
+  fit (McCullagh and Nelder 1989, *Generalized Linear Models*, §2.5). With a free amplitude
+  (the measurement model's) the Poisson likelihood factorises into the total count and the
+  multinomial histogram of a fixed number of particles, so the shape parameters and their
+  covariance are the multinomial ones too. The scale is known (1): standard errors are not
+  rescaled by the residuals, intervals use the normal quantile, and lack of fit is tested
+  on bins merged until each expects :data:`~fitting.residuals.COUNTS_PER_MERGED_BIN`
+  particles (:func:`fitting.residuals.counting_lack_of_fit`).
 """
 
 from __future__ import annotations
@@ -40,7 +53,10 @@ __all__ = [
     "ERROR_KINDS",
     "LOSSES",
     "CombinedErrors",
+    "CountingErrors",
     "ErrorEstimate",
+    "counting_weights",
+    "poisson_log_likelihood",
     "combined_weights",
     "estimate_combined_errors",
     "leverages",
@@ -50,7 +66,7 @@ __all__ = [
 ]
 
 #: The error models by name.
-ERROR_KINDS = ("absolute", "relative", "combined")
+ERROR_KINDS = ("absolute", "relative", "combined", "poisson")
 
 
 def residuals(predicted: ArrayLike, observed: ArrayLike) -> Array:
@@ -143,11 +159,76 @@ class CombinedErrors(eqx.Module):
             raise ValueError(f"change must be positive, got {self.change}")
 
 
+class CountingErrors(eqx.Module):
+    """Settings of fits to particle counts (Poisson errors of known size), immutable.
+
+    After a first fit (weighted by the exposure alone) the curve is fitted again with
+    weights ``x / max(m, floor · peak)`` (:func:`counting_weights`) from its own model curve
+    ``m``, until the fitted values change by less than `change`: the maximum-likelihood fit
+    of Poisson counts ``x y`` (see the module docstring).
+
+    **Arguments:**
+
+    - `floor`: floor of the weights' model value, as a fraction of the model's peak; only a
+      guard against dividing by zero where the model vanishes (at 1e-9 of the peak a point
+      expects 1e-9 of the peak bin's count: no count there is plausible but zero).
+    - `max_passes`: most fits in all (at least 2).
+    - `change`: relative change of every fitted value between passes below which the
+      weights count as consistent with the fit.
+    """
+
+    floor: float = eqx.field(default=1e-9, static=True)
+    max_passes: int = eqx.field(default=20, static=True)
+    change: float = eqx.field(default=1e-8, static=True)
+
+    def __check_init__(self):
+        if not 0 < self.floor < 1:
+            raise ValueError(f"floor must lie in (0, 1), got {self.floor}")
+        if not self.max_passes >= 2:
+            raise ValueError(f"max_passes must be at least 2, got {self.max_passes}")
+        if not self.change > 0:
+            raise ValueError(f"change must be positive, got {self.change}")
+
+
+def counting_weights(model_values: np.ndarray, exposure: np.ndarray,
+                     floor: float) -> np.ndarray:
+    """Weights ``x / max(m, floor · peak)`` of counting errors (``Var(y) = m / x``).
+
+    **Arguments:** `model_values`: ``m``, the model at each point (data unit);
+    `exposure`: ``x``, the exposure of each point (counts = ``x y``; 1/data unit);
+    `floor`: as in :class:`CountingErrors`.
+
+    **Returns:** the weights, shape ``(n,)`` (1/data unit²).
+    """
+    m = np.asarray(model_values, float)
+    size = np.maximum(m, floor * max(float(np.max(np.abs(m), initial=0.0)), 1e-300))
+    return np.asarray(exposure, float) / size
+
+
+def poisson_log_likelihood(observed: np.ndarray, model_values: np.ndarray,
+                           exposure: np.ndarray) -> float:
+    """Poisson log-likelihood ``Σ k ln μ - μ - ln k!`` of counts ``k = x y``, ``μ = x m``.
+
+    **Arguments:** `observed`: ``y``; `model_values`: ``m`` (same unit); `exposure`: ``x``.
+    Points of zero exposure are left out. **Returns:** the log-likelihood (``-inf`` where a
+    count meets a model value of zero).
+    """
+    x = np.asarray(exposure, float)
+    used = x > 0
+    k = (x * np.asarray(observed, float))[used]
+    mu = (x * np.asarray(model_values, float))[used]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        terms = np.where(k > 0, k * np.log(mu), 0.0) - mu
+    return float(np.sum(terms) - sum(map(math.lgamma, np.rint(k) + 1.0)))
+
+
 @dataclass(frozen=True)
 class ErrorEstimate:
     """The error model a fit used and its estimated sizes, in the data's unit.
 
-    - `kind`: ``"absolute"``, ``"relative"`` or ``"combined"``.
+    - `kind`: ``"absolute"``, ``"relative"``, ``"combined"`` or ``"poisson"`` (counts:
+      ``Var = m / exposure``, known; `proportional` then holds the Pearson dispersion
+      ``Σ w r² / dof``, 1 expected, as a check).
     - `additive`: ``a``, the standard deviation of the additive part (data unit; 0 when the
       model has none).
     - `proportional`: ``b``, the standard deviation of the proportional part as a fraction
@@ -185,6 +266,10 @@ class ErrorEstimate:
         note = f" ({self.note})" if self.note else ""
         if self.kind == "absolute":
             return f"absolute errors, standard deviation {self.additive:.3g}{unit}{note}"
+        if self.kind == "poisson":
+            return (f"counting (Poisson) errors of known size, Var = model / exposure; "
+                    f"Pearson dispersion {self.proportional:.3g} (1 expected; {self.passes} "
+                    "fits)")
         if self.kind == "relative":
             return (f"relative errors, standard deviation {100 * self.proportional:.3g} % of "
                     f"the model ({self.passes} fits)")

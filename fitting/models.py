@@ -140,7 +140,7 @@ InletResponse = Callable[..., object]
 def parameter_unit(template: str, time_unit: str, value_unit: str | None = None) -> str:
     """A parameter's unit from its template: ``{t}`` is the curve's time unit, ``{y}`` its
     value unit (``"{t}"`` -> ``"min"``, ``"1/{t}"`` -> ``"1/min"``, ``"1"`` dimensionless,
-    ``"{y}*{t}"`` -> ``"g/L*min"``).
+    ``"{y}*{t}"`` -> ``"g/L*min"``, and ``"particles"`` for counts per time unit).
 
     **Arguments:** `template`; `time_unit` (``"s"``, ``"min"``, ...); `value_unit` (the data
     column's unit, or ``None`` when the file names none: then ``"signal"``, the unit of the
@@ -148,7 +148,12 @@ def parameter_unit(template: str, time_unit: str, value_unit: str | None = None)
 
     **Returns:** the unit as text.
     """
-    return template.replace("{t}", time_unit).replace("{y}", value_unit or "signal")
+    value_unit = value_unit or "signal"
+    per_time = f"/{time_unit}"
+    if "{y}*{t}" in template and value_unit.endswith(per_time):
+        # A rate times time: "particles/s*s" is "particles".
+        template = template.replace("{y}*{t}", value_unit[: -len(per_time)])
+    return template.replace("{t}", time_unit).replace("{y}", value_unit)
 
 
 @dataclass(frozen=True, eq=False)

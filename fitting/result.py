@@ -16,10 +16,10 @@ import equinox as eqx
 import numpy as np
 
 from fitting.data import Curve
-from fitting.losses import CombinedErrors, ErrorEstimate
+from fitting.losses import CombinedErrors, CountingErrors, ErrorEstimate
 from fitting.models import Model
 from fitting.parameters import Parameters
-from fitting.residuals import LackOfFit, lack_of_fit_test
+from fitting.residuals import LackOfFit, counting_lack_of_fit, lack_of_fit_test
 from fitting.solve import MultiStart, Optimiser
 
 __all__ = ["FitResult", "FitSettings", "FitStats", "RelativeErrors"]
@@ -67,6 +67,8 @@ class FitSettings(eqx.Module):
     - `relative_errors`: :class:`RelativeErrors`, or ``None`` for errors of equal size.
     - `combined_errors`: :class:`~fitting.losses.CombinedErrors` for additive plus
       proportional errors, both estimated, or ``None``.
+    - `counting_errors`: :class:`~fitting.losses.CountingErrors` for particle counts
+      (Poisson errors of known size), or ``None``.
     """
 
     loss: str = eqx.field(default="sse", static=True)
@@ -74,12 +76,17 @@ class FitSettings(eqx.Module):
     multistart: MultiStart = MultiStart()
     relative_errors: RelativeErrors | None = None
     combined_errors: CombinedErrors | None = None
+    counting_errors: CountingErrors | None = None
 
     def __check_init__(self):
         if self.loss not in ("sse", "mae"):
             raise ValueError(f"loss must be one of ['mae', 'sse'], got {self.loss!r}")
-        if self.relative_errors is not None and self.combined_errors is not None:
-            raise ValueError("choose one error model: relative_errors or combined_errors")
+        chosen = [name for name in ("relative_errors", "combined_errors", "counting_errors")
+                  if getattr(self, name) is not None]
+        if len(chosen) > 1:
+            raise ValueError(f"choose one error model, not {' and '.join(chosen)}")
+        if self.counting_errors is not None and self.loss != "sse":
+            raise ValueError("counting errors need the least-squares loss 'sse'")
 
 
 @dataclass(frozen=True)
@@ -219,8 +226,13 @@ class FitResult:
         leaving out zero-weight points and, for relative-error fits, the points whose weight
         the floor caps (:meth:`described_points`). The noise level is taken as estimated from
         the same residuals, so there is no scaled-SSE test here; give a known one to
-        :func:`fitting.diagnostics.lack_of_fit`.
+        :func:`fitting.diagnostics.lack_of_fit`. A fit to counts (counting errors) is tested
+        on bins merged to a few expected particles each, with the known Poisson noise
+        (:func:`fitting.residuals.counting_lack_of_fit`).
         """
+        if self.counting:
+            return counting_lack_of_fit(self.observed, self.predicted, self.exposure,
+                                        len(self.free_names))
         weights = np.asarray(self.weights, dtype=float)
         if self.loss_name == "mae":
             weights = weights**2
@@ -228,6 +240,19 @@ class FitResult:
         peak = float(np.max(np.abs(self.observed[used]), initial=0.0))
         return lack_of_fit_test(self.residuals, weights, dof=self.dof, peak=peak,
                                 described=self.described_points())
+
+    @property
+    def counting(self) -> bool:
+        """Whether the fit treated its values as counts (counting errors of known size)."""
+        return getattr(self.settings, "counting_errors", None) is not None
+
+    @property
+    def exposure(self) -> np.ndarray:
+        """Counts per unit value at each point (``Curve.exposure``; ones when the curve
+        gives none: the values are then the counts themselves)."""
+        if self.curve.exposure is not None:
+            return self.curve.exposure
+        return np.ones(len(self.curve))
 
     def described_points(self) -> np.ndarray:
         """Which points' noise the fit's weights describe (boolean, one per point).

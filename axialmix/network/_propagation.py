@@ -121,9 +121,31 @@ def continuous_states(
     if concrete is not None:
         steps = np.diff(np.maximum(concrete, 0.0), prepend=0.0)
         return _exponential_states(generator, start, jnp.asarray(steps), uniform_spacing(steps))
-    return _exponential_states(
-        generator, start, jnp.diff(jnp.maximum(times, 0.0), prepend=0.0), False
-    )
+    return _traced_exponential_states(generator, start, times)
+
+
+#: Relative spread of traced intervals below which they are propagated as one uniform grid
+#: (decimal times read from a file, 0.01 s apart up to 41 s, differ by about 1e-12 of the step).
+TRACED_UNIFORM_TOLERANCE = 1e-9
+
+
+@jax.jit
+def _traced_exponential_states(generator: Array, start: Array, times: Array) -> Array:
+    """States at traced times: whether they are uniformly spaced is known only when the
+    program runs, so both strategies are compiled and a branch picks one (one matrix
+    exponential and matrix–vector products for a uniform grid: 100 times faster for a
+    histogram of 4,000 bins than one exponential per interval). Under ``vmap`` the branch
+    becomes a select and both run."""
+    increments = jnp.diff(jnp.maximum(times, 0.0), prepend=0.0)
+    if increments.shape[0] < 3:
+        return _propagate(lambda h: expm(generator * h), start, increments, False)
+    rest = increments[1:]
+    uniform = jnp.all(jnp.abs(rest - rest[0])
+                      <= TRACED_UNIFORM_TOLERANCE * jnp.maximum(jnp.abs(rest[0]), 1e-300))
+    return jax.lax.cond(
+        uniform,
+        lambda: _propagate(lambda h: expm(generator * h), start, increments, True),
+        lambda: _propagate(lambda h: expm(generator * h), start, increments, False))
 
 
 # Jitted with the strategy static, so that eager calls reuse the compiled propagation.

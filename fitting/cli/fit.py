@@ -5,7 +5,7 @@
                  (a network file may be .toml; several models, comma-separated, to compare)
                  [--fix NAME=VALUE] [--tie NAME=OTHER] [--free dead_time,baseline]
                  [--inlet pulse|step|FILE] [--loss sse|mae] [--grid] [--starts N]
-                 [--errors absolute|relative|combined] [--length METRES]
+                 [--errors absolute|relative|combined|poisson] [--length METRES]
                  [--decimal auto|.|,] [--time-column C] [--value-column C] --out DIR
                  [--curve-column C [--inlet-column C] [--factors A,B] | --design FILE]
                  [--chunk N] [--workers N | --scheduler ADDRESS]
@@ -50,7 +50,11 @@ absolute error) or ``absolute`` (errors of one size, unweighted least squares). 
 least squares treats the peak, where proportional noise is largest, as precise as the tail,
 and its intervals are then too narrow; pure relative weights let a sample where the model is
 near zero (t = 0) take almost all the weight. The grid search (``--grid``) scores the
-unweighted loss, as the source did, so it runs with absolute errors.
+unweighted loss, as the source did, so it runs with absolute errors. ``poisson`` is for
+particle counts (a histogram of tracer particles leaving, as ``axialmix simulate`` writes
+with its ``count`` and ``bin [s]`` columns; chosen by itself for such files): Poisson noise of
+known size, fitted by maximum likelihood, intervals from the known scale and lack of fit
+tested on bins merged to 10 expected particles each (:mod:`fitting.losses`).
 
 With ``--length L`` (m; there is no default) every ADM-family fit also reports the velocity
 ``v`` and axial dispersion ``D_z`` in SI, networks their equivalent ``tau``, ``Pe`` and
@@ -173,10 +177,12 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--starts", type=int, default=None, metavar="N",
                         help="number of starts (default: the moment estimate for ADM and "
                         "tanks models, 8 for compartment networks)")
-    parser.add_argument("--errors", choices=("absolute", "relative", "combined"), default=None,
+    parser.add_argument("--errors", choices=("absolute", "relative", "combined", "poisson"),
+                        default=None,
                         help="error model: combined (default: additive plus proportional, "
-                        "both estimated), relative (proportional to the curve) or absolute "
-                        "(equal size; the default with --grid)")
+                        "both estimated), relative (proportional to the curve), absolute "
+                        "(equal size; the default with --grid) or poisson (particle counts; "
+                        "the default for files with a 'count' column)")
     parser.add_argument("--length", type=float, default=None, metavar="METRES",
                         help="blender length L (m) for v and D_z in SI with their "
                         "uncertainty (no default: without it only tau and Pe are reported)")
@@ -398,6 +404,33 @@ def _read_curves(files: Sequence[Path], args: argparse.Namespace | None = None) 
                 text = str(warning.message)
                 print(f"axialmix fit: warning: {_compact(text)}", file=sys.stderr)
     return curves
+
+
+def _default_errors(args: argparse.Namespace, curves: Sequence | None) -> str:
+    """The error model: ``--errors`` when given; else counting errors for files of particle
+    counts (said in one line), absolute errors with ``--grid``, combined ones otherwise."""
+    counting = [] if curves is None else [c.exposure is not None for c in curves]
+    if args.errors is not None:
+        if args.errors != "poisson" and any(counting):
+            names = ", ".join(c.source or c.name for c, k in zip(curves, counting, strict=True)
+                              if k)
+            print(f"axialmix fit: warning: {names} hold(s) particle counts, fitted with "
+                  f"--errors {args.errors} as asked; their noise is Poisson (--errors poisson)",
+                  file=sys.stderr)
+        return args.errors
+    if counting and all(counting):
+        if args.grid:
+            raise InputError("--grid scores the unweighted loss; these files hold particle "
+                             "counts, whose noise is Poisson: fit them without --grid")
+        files = ", ".join(c.source or c.name for c in curves)
+        print(f"counting errors: {files} hold{'s' if len(curves) == 1 else ''} particle counts "
+              "(Poisson noise of known size), fitted by maximum likelihood (--errors poisson)")
+        return "poisson"
+    if any(counting):
+        listed = ", ".join(c.source or c.name for c, k in zip(curves, counting, strict=True) if k)
+        raise InputError(f"{listed} hold particle counts and the other files signals: fit them "
+                         "apart, or choose one error model with --errors")
+    return "absolute" if args.grid else "combined"
 
 
 def _compact(message: str) -> str:
@@ -798,9 +831,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--starts: must be at least 1, got {args.starts}")
         if args.starts is not None and args.starts > 1_000_000:
             raise InputError(f"--starts: at most 1,000,000, got {args.starts}")
-        if args.errors is None:
-            args.errors = "absolute" if args.grid else "combined"
-        if args.grid and args.errors != "absolute":
+        if args.grid and args.errors not in (None, "absolute"):
             raise InputError(f"--grid scores the unweighted loss, as the source did; use it "
                              f"with --errors absolute (its default), not {args.errors}")
         if args.length is not None and not (math.isfinite(args.length) and args.length > 0):
@@ -823,8 +854,10 @@ def run(args: argparse.Namespace) -> int:
                              "one --model")
         every_settings = _settings_for_each(models, args.fix, args.tie)
         if _is_study(args):
+            args.errors = _default_errors(args, None)
             return _run_study(args, files, models, every_settings, free, out)
         curves = _read_curves(files, args)
+        args.errors = _default_errors(args, curves)
         inlet = _inlet(args.inlet, curves, args)
         try:
             models = [measured(m.base, inlet, free) for m in models]

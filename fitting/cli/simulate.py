@@ -269,7 +269,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--rtd-csv",
         metavar="PATH",
         default=None,
-        help="write the RTD here: columns 't [s]' and 'E [1/s]' (for axialmix fit)",
+        help="write the RTD here: a histogram of the tracer leaving, columns 't [s]', 'count' "
+        "(particles per bin), 'bin [s]' and 'E [1/s]' (axialmix fit reads the counts with "
+        "counting errors)",
     )
     continuous.add_argument(
         "--samples-csv",
@@ -501,7 +503,7 @@ def _check_samples(args, network, steps: int, tracer, tau: float) -> None:
 def _run_continuous(args) -> int:
     import numpy as np
 
-    from axialmix._files import write_csv, write_json
+    from axialmix._files import csv_text, write_csv, write_json, write_text
     from axialmix.particles import (
         TracerPulse,
         constant_feed,
@@ -599,11 +601,20 @@ def _run_continuous(args) -> int:
     }
     writers = []
     if args.rtd_csv is not None:
-        # E(0) = 0 (the discrete convention), so the curve starts where the pulse entered.
-        rtd_rows = [("0", "0")] + [
-            (f"{t:.10g}", f"{e:.10g}") for t, e in zip(times, exit_age, strict=True)
+        # A histogram of the tracer particles leaving, one bin per step, reported at the bin's
+        # end; E(0) = 0 (the discrete convention), so the curve starts where the pulse
+        # entered. The counts make `axialmix fit` use counting (Poisson) errors.
+        counts = np.rint(exit_age * tracer.particles * dt).astype(np.int64)
+        rtd_rows = [("0", "0", f"{dt:.10g}", "0")] + [
+            (f"{t:.10g}", str(int(k)), f"{dt:.10g}", f"{e:.10g}")
+            for t, k, e in zip(times, counts, exit_age, strict=True)
         ]
-        writers.append(lambda: write_csv(args.rtd_csv, ["t [s]", "E [1/s]"], rtd_rows))
+        comment = (f"# axialmix simulate continuous ({args.preset}, seed {result.seed}): "
+                   f"tracer pulse of {tracer.particles} particles; count = tracer particles "
+                   f"leaving in the bin of width 'bin [s]' ending at t (Poisson counts: "
+                   f"axialmix fit uses counting errors); E = count / ({tracer.particles} bin)\n")
+        writers.append(lambda: write_text(args.rtd_csv, comment + csv_text(
+            ["t [s]", "count", "bin [s]", "E [1/s]"], rtd_rows)))
     if args.samples_csv is not None:
         sample_rows = list(zip(samples["times_s"], samples["fractions"], strict=True))
         header = ["t [s]", f"{samples['species']} [fraction]"]
