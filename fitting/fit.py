@@ -795,16 +795,28 @@ _COUNTING_METHOD = ("counting (Poisson) errors: reweighted by exposure/model unt
                     "the maximum-likelihood fit")
 
 
+def _settings_with_counting(result: FitResult) -> FitSettings:
+    """`result`'s settings with counting errors (the defaults when it has none)."""
+    settings = result.settings if result.settings is not None else FitSettings()
+    if settings.counting_errors is not None:
+        return settings
+    return with_error_model(dataclasses.replace(settings, relative_errors=None,
+                                                combined_errors=None), "poisson")
+
+
 def _with_counting_errors(result: FitResult, passes: int) -> FitResult:
     """A fit to counts with the known Poisson scale: standard errors and covariance from
     ``(Jᵀ W J)⁻¹`` with ``W = x / m`` (not rescaled by the residuals), 95 % intervals from
     the normal quantile, AIC and BIC from the Poisson likelihood; the Pearson dispersion
-    ``Σ w r² / dof`` (1 expected) is kept in the error model as a check."""
+    ``X² / dof`` of the merged bins (1 expected) is kept in the error model as a check."""
     sigma = result.sigma
     method = result.method if _COUNTING_METHOD in result.method else (
         f"{result.method}; {_COUNTING_METHOD} ({passes} passes)")
-    dispersion = sigma**2 if sigma is not None and math.isfinite(sigma) else math.nan
-    if not (math.isfinite(dispersion) and dispersion > 0):
+    # Pearson's X² / dof on the merged bins (that of bins expecting a fraction of a particle
+    # scatters far more than a chi-square's: Var((k - μ)²/μ) = 2 + 1/μ).
+    merged = dataclasses.replace(result, settings=_settings_with_counting(result)).lack_of_fit
+    dispersion = merged.scaled_sse if merged.scaled_sse is not None else math.nan
+    if not (sigma is not None and math.isfinite(sigma) and sigma > 0):
         return dataclasses.replace(result, method=method,
                                    error_model=ErrorEstimate("poisson", 0.0, dispersion, passes))
     factor = 1.0 / sigma

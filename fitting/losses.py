@@ -228,7 +228,7 @@ class ErrorEstimate:
 
     - `kind`: ``"absolute"``, ``"relative"``, ``"combined"`` or ``"poisson"`` (counts:
       ``Var = m / exposure``, known; `proportional` then holds the Pearson dispersion
-      ``Σ w r² / dof``, 1 expected, as a check).
+      ``X² / dof`` on the bins merged for the lack-of-fit test, 1 expected, as a check).
     - `additive`: ``a``, the standard deviation of the additive part (data unit; 0 when the
       model has none).
     - `proportional`: ``b``, the standard deviation of the proportional part as a fraction
@@ -268,8 +268,8 @@ class ErrorEstimate:
             return f"absolute errors, standard deviation {self.additive:.3g}{unit}{note}"
         if self.kind == "poisson":
             return (f"counting (Poisson) errors of known size, Var = model / exposure; "
-                    f"Pearson dispersion {self.proportional:.3g} (1 expected; {self.passes} "
-                    "fits)")
+                    f"Pearson dispersion {self.proportional:.3g} on merged bins (1 expected; "
+                    f"{self.passes} fits)")
         if self.kind == "relative":
             return (f"relative errors, standard deviation {100 * self.proportional:.3g} % of "
                     f"the model ({self.passes} fits)")
