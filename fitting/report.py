@@ -19,6 +19,7 @@ data, with the headline parameters and their 95 % intervals written on it.
 from __future__ import annotations
 
 import math
+import textwrap
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -672,42 +673,66 @@ def _fit_word(record: Mapping[str, Any]) -> str:
 # --- model comparison ---------------------------------------------------------------------------
 
 
-def comparison_table(comparison: ModelComparison) -> str:
+def comparison_table(comparison: ModelComparison, wide: bool = False) -> str:
     """The table of a model comparison: fitted parameters with their units, SSE (``Σ w r²``),
     AICc, BIC and lack of fit per model, followed by the recommendation.
 
     **Arguments:**
 
     - `comparison`: from :func:`fitting.diagnostics.compare_models`.
+    - `wide`: one row per model with every column; by default the criteria in a table of
+      at most :data:`TABLE_WIDTH` columns and each model's parameters (value±std. error,
+      unit) on lines of their own below it.
 
     **Returns:** the table and the recommendation as text.
     """
-    header = ["model", "fitted parameters (value +/- std. error)", "SSE", "K", "AICc",
-              "dAICc", "BIC", "lack of fit", "converged"]
-    rows = []
-    for i, result in enumerate(comparison.results):
-        cells = []
-        units = parameter_units(result)
-        for name in result.values:
-            setting = result.init_params[name]
-            if not setting.vary and setting.expr is None:
-                continue  # fixed: in each fit's own record and table
-            error = _finite(result.stderr.get(name))
-            unit = "" if units.get(name, "") in ("", "1") else f" {units[name]}"
-            cells.append(f"{name} {_number(result.values[name], 4)}"
-                         + ("" if error is None else f" +/- {error:.2g}") + unit)
-        rows.append([
-            comparison.names[i], ", ".join(cells), _number(result.sse, 4),
-            str(comparison.n_parameters[i]), _number(comparison.aicc[i], 6),
-            _number(comparison.delta_aicc[i], 3), _number(comparison.bic[i], 6),
-            _verdict(result.lack_of_fit.to_dict()), "yes" if result.converged else "no",
-        ])
     first = comparison.results[0]
     title = (f"{first.name or 'curve'}: {len(comparison.results)} models, {first.n_points} "
              f"points, times in {first.time_unit} (K = free parameters + the error model's; "
              "lower AICc and BIC are better)")
+    if not wide:
+        header = ["model", "K", "AICc", "dAICc", "BIC", "lack of fit", "converged"]
+        rows, lines = [], []
+        for i, result in enumerate(comparison.results):
+            rows.append([comparison.names[i], str(comparison.n_parameters[i]),
+                         _number(comparison.aicc[i], 6), _number(comparison.delta_aicc[i], 3),
+                         _number(comparison.bic[i], 6), _verdict(result.lack_of_fit.to_dict()),
+                         "yes" if result.converged else "no"])
+            text = ", ".join(_parameter_cells(result, "±"))
+            lines.append(textwrap.fill(text, TABLE_WIDTH, initial_indent=f"  {comparison.names[i]}: ",
+                                       subsequent_indent="    "))
+        return "\n".join([textwrap.fill(title, TABLE_WIDTH), text_table(header, rows),
+                          "fitted parameters (value±std. error):", *lines,
+                          textwrap.fill(f"Recommendation: {comparison.recommendation}",
+                                        TABLE_WIDTH)])
+    header = ["model", "fitted parameters (value +/- std. error)", "SSE", "K", "AICc",
+              "dAICc", "BIC", "lack of fit", "converged"]
+    rows = []
+    for i, result in enumerate(comparison.results):
+        rows.append([
+            comparison.names[i], ", ".join(_parameter_cells(result, " +/- ")),
+            _number(result.sse, 4),
+            str(comparison.n_parameters[i]), _number(comparison.aicc[i], 6),
+            _number(comparison.delta_aicc[i], 3), _number(comparison.bic[i], 6),
+            _verdict(result.lack_of_fit.to_dict()), "yes" if result.converged else "no",
+        ])
     return "\n".join([title, text_table(header, rows),
                       f"Recommendation: {comparison.recommendation}"])
+
+
+def _parameter_cells(result: FitResult, plus_minus: str) -> list[str]:
+    """``tau 7.191±0.31 s``: each fitted (free or tied) parameter with its error and unit."""
+    cells = []
+    units = parameter_units(result)
+    for name in result.values:
+        setting = result.init_params[name]
+        if not setting.vary and setting.expr is None:
+            continue  # fixed: in each fit's own record and table
+        error = _finite(result.stderr.get(name))
+        unit = "" if units.get(name, "") in ("", "1") else f" {units[name]}"
+        cells.append(f"{name} {_number(result.values[name], 4)}"
+                     + ("" if error is None else f"{plus_minus}{error:.2g}") + unit)
+    return cells
 
 
 def comparison_record(comparison: ModelComparison,

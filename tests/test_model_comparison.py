@@ -63,6 +63,13 @@ def test_a_model_that_misses_the_curve_loses_to_the_one_that_describes_it(adm_cu
     assert "tanks does not describe the curve" in comparison.recommendation
     table = comparison_table(comparison)
     assert "SYSTEMATIC" in table and "Recommendation: adm is recommended" in table
+    # A 100-column terminal holds it; every parameter is still there, and --wide gives one
+    # row a model.
+    assert max(len(line) for line in table.splitlines()) <= 100
+    assert "tau " in table and "peclet " in table and "n_tanks " in table
+    wide = comparison_table(comparison, wide=True)
+    assert "fitted parameters (value +/- std. error)" in wide and "SSE" in wide
+    assert len(wide.splitlines()) == 4 + 2  # title, header, rule, recommendation
     record = json.loads(json.dumps(comparison_record(comparison)))
     assert [m["model"] for m in record["models"]] == ["tanks", "adm"]
     assert record["models"][0]["lack_of_fit"]["systematic"] is True

@@ -1047,7 +1047,7 @@ class _Run(_Supervised):
                 write_png(out / f"{curve.name}.{result.model.name}.png", image)
             write_json(out / f"{curve.name}.comparison.json", record)
             self.records.append(record)
-        print(comparison_table(comparison), flush=True)
+        print(comparison_table(comparison, wide=self.args.wide), flush=True)
         return OK
 
     def _write_comparison_summary(self, records, interrupted: bool) -> None:
