@@ -125,3 +125,27 @@ def test_the_summary_table_fits_100_columns_and_wide_shows_every_column(summarie
     wide = summary_table(records, wide=True)
     for column in ("k_out (1/s)", "amplitude", "loss", "evaluations", "lack of fit"):
         assert column in wide
+
+
+def test_a_study_writes_each_curves_record_which_funnel_reads(summaries, tmp_path, capsys):
+    import json
+
+    study = summaries[3].parent / "study"
+    records = json.loads((study / "summary.json").read_text())["curves"]
+    files = sorted((study / "curves").glob("*.json"))
+    assert [f.stem for f in files] == [f.stem for f in FILES]
+    for record in records:
+        assert json.loads((study / "curves" / f"{record['curve']}.json").read_text()) == record
+    capsys.readouterr()
+    status = main(["funnel", "--model", str(study / "curves" / "horizontal.json"),
+                   "--durations", "1,5", "--magnitudes", "10,30", "--out", str(tmp_path / "f")])
+    assert status == 0, capsys.readouterr().err
+    assert (tmp_path / "f" / "funnel.json").exists()
+
+
+def test_curve_file_names_are_safe_and_distinct():
+    from fitting.study.batch import curve_file_stem
+
+    assert curve_file_stem("run 1/2") == "run_1_2"
+    assert curve_file_stem("A-3.b_c") == "A-3.b_c"
+    assert curve_file_stem("..") == "curve" and curve_file_stem("é") == "_"

@@ -81,7 +81,8 @@ curve files get their factors from a design table. Either way (and with ``--chun
 would be, in chunks of ``--chunk`` curves (default 64), and ``DIR/summary.csv`` and
 ``DIR/summary.json`` get one row per curve: its factors, each parameter with standard error and
 95 % interval (units in the column names), v and D_z with ``--length``, the error model,
-convergence and the lack-of-fit verdict. No per-curve files or plots are written. Finished
+convergence and the lack-of-fit verdict, and ``DIR/curves/<curve>.json`` holds each curve's
+full record (what ``funnel --model`` and ``divert --model`` read; no plots). Finished
 chunks are appended to ``DIR/summary.jsonl``; the same command run again after Ctrl-C or a
 kill fits only the curves not yet in it. ``--workers N`` fits on a local Dask cluster of N
 processes, ``--scheduler ADDRESS`` on a running one, with the same results. A study fits one
@@ -172,7 +173,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--grid", action="store_true",
                         help="also run the source's exhaustive grid search and compare")
     parser.add_argument("--wide", action="store_true",
-                        help="print every column of the summary table (default: the headline "
+                        help="print every column of the summary and model-comparison tables "
+                        "(default: the headline "
                         "numbers in 100 columns; every column is in summary.csv)")
     parser.add_argument("--starts", type=int, default=None, metavar="N",
                         help="number of starts (default: the moment estimate for ADM and "

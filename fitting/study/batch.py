@@ -49,7 +49,7 @@ from typing import Any
 
 import equinox as eqx
 
-from axialmix._files import write_atomic, write_csv
+from axialmix._files import write_atomic, write_csv, write_json
 from axialmix._progress import progress_bar
 from fitting.data import Curve
 from fitting.fit import fit, fit_many
@@ -397,6 +397,23 @@ class StudyRun:
                 stream.write("\n  ]\n}\n")
 
             write_atomic(self.folder / "summary.json", fill)
+            self._write_curve_records()
+
+    def _write_curve_records(self) -> None:
+        """One JSON record per fitted curve in ``curves/`` (what ``funnel --model`` and
+        ``divert --model`` read, as they read a single file's fit), named after the curve
+        (characters other than letters, digits, ``.``, ``-`` and ``_`` become ``_``; a name
+        taken twice that way gets its study position appended). Each is written atomically;
+        a record already there from an earlier run of the same study is rewritten."""
+        folder = self.folder / CURVE_FOLDER
+        folder.mkdir(exist_ok=True)
+        taken: set[str] = set()
+        for record in self.records():
+            name = curve_file_stem(record["curve"])
+            if name in taken:
+                name = f"{name}-{self.index[record['curve']] + 1}"
+            taken.add(name)
+            write_json(folder / f"{name}.json", record)
 
     def _chunks(self) -> Iterator[list[int]]:
         pending = self.pending
@@ -446,6 +463,17 @@ class StudyRun:
         if not stop():
             self.write_summary()
         return count
+
+
+#: The sub-folder of a study's output that holds one fit record per curve.
+CURVE_FOLDER = "curves"
+
+
+def curve_file_stem(name: str) -> str:
+    """A file name for a curve id: letters, digits, ``.``, ``-`` and ``_`` kept, any other
+    character ``_`` (``"run 1/2"`` -> ``"run_1_2"``; an empty or dot-only name -> ``"curve"``)."""
+    stem = "".join(c if c.isascii() and (c.isalnum() or c in "._-") else "_" for c in name)
+    return stem if stem.strip(".") else "curve"
 
 
 def map_chunks(task: Callable, chunks: Iterator[tuple[Any, tuple]], workers: int | None,
