@@ -179,8 +179,9 @@ def _interrupt_once(folder, delay: float) -> dict:
         assert process.returncode == 130 or not data["interrupted"], outcome
         outcome["steps_completed"] = data["steps_completed"]
     if csv_path.exists():
-        rows = csv_path.read_text().splitlines()
-        assert rows[0] == "t [s],E [1/s]" and all(r.count(",") == 1 for r in rows)
+        comment, header, *rows = csv_path.read_text().splitlines()
+        assert comment.startswith("# axialmix simulate continuous")
+        assert header == "t [s],count,bin [s],E [1/s]" and all(r.count(",") == 3 for r in rows)
     return outcome
 
 

@@ -97,7 +97,7 @@ def test_absolute_and_relative_fits_report_their_error_sizes():
 @pytest.mark.parametrize(
     ("options", "words"),
     [
-        ({"errors": "poisson"}, "errors must be one of"),
+        ({"errors": "lognormal"}, "errors must be one of"),
         ({"errors": "combined", "weights": np.ones(40)}, "sets the weights itself"),
         ({"errors": "combined", "relative_errors": True}, "give the error model once"),
     ],

@@ -207,7 +207,7 @@ def test_bad_folder_file_and_options_are_one_line_errors(tmp_path, capsys):
     _assert_one_line_error(capsys.readouterr(), folder / "b.csv", 4)
     for options in (["--model", "nonsense"], ["--fix", "k_f"], ["--fix", "zeta=1"],
                     ["--model", "four-compartment", "--tie", "k_r=k_q"], ["--starts", "0"],
-                    ["--grid", "--errors", "relative"], ["--errors", "poisson"]):
+                    ["--grid", "--errors", "relative"], ["--errors", "lognormal"]):
         assert main(["fit", str(EXAMPLE_FILES[0]), *options, "--out", str(out)]) == 2
         lines = capsys.readouterr().err.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("axialmix fit: error: ")
