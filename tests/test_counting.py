@@ -222,3 +222,31 @@ def test_simulator_histogram_is_fitted_with_counting_errors_by_itself(tmp_path):
     tracer = int(line.split(" of ")[1].split(" particles")[0])
     low, high = amplitude["ci95"]
     assert low <= tracer <= high
+
+
+def test_a_long_study_of_counts_is_refused_in_one_line(tmp_path):
+    from fitting.study.input import read_long_csv
+
+    path = tmp_path / "study.csv"
+    path.write_text("run,t [s],count,bin [s]\n" + "".join(
+        f"{run},{t},{k},1\n" for run in ("a", "b") for t, k in zip(range(1, 7), (0, 3, 5, 2, 1, 0),
+                                                                    strict=True)))
+    with pytest.raises(DataError, match="holds particle counts: a long-format study fits "
+                                        "signals; fit the histograms as files or a folder"):
+        read_long_csv(path, "run")
+
+
+def test_a_study_of_histogram_files_uses_counting_errors_too(tmp_path, capsys):
+    from fitting.cli import main
+
+    folder = tmp_path / "histograms"
+    folder.mkdir()
+    for seed in range(3):
+        _, counts = _histogram(200 + seed)
+        rows = "".join(f"{t:.10g},{k}\n" for t, k in zip(TIMES, counts, strict=True))
+        (folder / f"h{seed}.csv").write_text("t [s],count\n" + rows)
+    assert main(["fit", str(folder), "--model", "adm", "--chunk", "2", "--out",
+                 str(tmp_path / "study")]) == 0
+    assert "counting errors:" in capsys.readouterr().out
+    records = json.loads((tmp_path / "study" / "summary.json").read_text())["curves"]
+    assert [r["error_model"]["kind"] for r in records] == ["poisson"] * 3

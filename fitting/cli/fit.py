@@ -679,6 +679,7 @@ def _run_study(args: argparse.Namespace, files: Sequence[Path], models, every_se
             importlib.util.find_spec("distributed") is None):
         raise InputError("--workers and --scheduler need Dask: pip install 'axialmix[dask]'")
     study = _read_study(args, files)
+    args.errors = _default_errors(args, study.curves)
     per_curve = any(inlet is not None for inlet in study.inlets)
     if per_curve and args.inlet != "pulse":
         raise InputError("--inlet-column gives each curve its inlet; leave out --inlet")
@@ -856,7 +857,6 @@ def run(args: argparse.Namespace) -> int:
                              "one --model")
         every_settings = _settings_for_each(models, args.fix, args.tie)
         if _is_study(args):
-            args.errors = _default_errors(args, None)
             return _run_study(args, files, models, every_settings, free, out)
         curves = _read_curves(files, args)
         args.errors = _default_errors(args, curves)

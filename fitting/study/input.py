@@ -31,7 +31,14 @@ from pathlib import Path
 import numpy as np
 
 from axialmix._csv import read_table
-from fitting.data import Curve, DataError, column_time_unit, curve_columns, validated_curve
+from fitting.data import (
+    Curve,
+    DataError,
+    column_time_unit,
+    counting_columns,
+    curve_columns,
+    validated_curve,
+)
 
 __all__ = ["DESIGN_NAME_COLUMNS", "Study", "factor_value", "read_design", "read_long_csv",
            "study_from_files"]
@@ -162,6 +169,12 @@ def read_long_csv(
     rest = [c for c in table.columns if c.index not in taken]
     # The time and value columns are chosen among the others as in a curve file.
     narrowed = dataclasses.replace(table, columns=tuple(rest))
+    counting = counting_columns(narrowed, _wanted(table, time_column),
+                                _wanted(table, value_column))
+    if counting is not None:
+        raise table.error(f"column {counting[1].label!r} holds particle counts: a long-format "
+                          "study fits signals; fit the histograms as files or a folder, where "
+                          "their counting (Poisson) errors apply")
     time_col, value_col = curve_columns(narrowed, _wanted(table, time_column),
                                         _wanted(table, value_column))
     taken |= {time_col.index, value_col.index}
