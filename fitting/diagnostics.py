@@ -43,6 +43,7 @@ __all__ = [
     "equivalent_dispersion",
     "identifiability",
     "lack_of_fit",
+    "other_optima",
     "profile_likelihood",
 ]
 
@@ -624,3 +625,75 @@ def equivalent_dispersion(result: FitResult, length: float = 1.0) -> dict:
         "chain": {"velocity": velocity, "axial_dispersion": dispersion, "peclet": peclet},
     }
 
+
+
+# --- other optima ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class OtherOptimum:
+    """A start of a multi-start fit that ended elsewhere with a loss as low as the best's.
+
+    **Fields:** `start` (0-based), `values` (its free parameters), `loss` (its first-fit
+    loss, in the loss's unit), `outside` (the free parameters whose value there lies outside
+    the fit's 95 % interval).
+    """
+
+    start: int
+    values: dict[str, float]
+    loss: float
+    outside: tuple[str, ...]
+
+
+def other_optima(result: FitResult) -> list[OtherOptimum]:
+    """The starts that ended at another optimum fitting the curve as well as the best one.
+
+    A start counts when its first-fit loss lies within the 95 % threshold of the best one's,
+    ``loss_min (1 + t² / (n - p))`` (the level of :func:`profile_likelihood`), and at least
+    one free parameter there lies outside the fit's 95 % interval: the curve does not choose
+    between the two, and the interval, which describes the neighbourhood of one optimum, does
+    not cover the other. Only fits whose starts' ends are known (the multi-start solver's
+    path: fits with random starts) can be checked; others give ``[]``.
+
+    **Arguments:** `result`: a :class:`~fitting.result.FitResult`.
+
+    **Returns:** the other optima, the lowest loss first (at most one per distinct end).
+    """
+    ends, losses = result.start_values, np.asarray(result.start_losses, dtype=float)
+    if ends is None or ends.ndim != 2 or ends.shape[0] < 2 or losses.shape[0] != ends.shape[0]:
+        return []
+    dof = result.n_points - len(result.free_names)
+    finite = np.isfinite(losses)
+    if dof <= 0 or not finite.any():
+        return []
+    best = float(np.min(losses[finite]))
+    quantile = t_quantile(dof)
+    threshold = best * (1 + quantile**2 / dof)
+    found: list[OtherOptimum] = []
+    seen: list[tuple[tuple[str, ...], np.ndarray]] = []
+    for index in np.argsort(np.where(finite, losses, np.inf)):
+        if not (finite[index] and losses[index] <= threshold):
+            break
+        end = ends[index]
+        values = dict(zip(result.free_names, (float(v) for v in end), strict=True))
+        outside = []
+        for name, value in values.items():
+            interval = result.ci95.get(name)
+            if interval is None:
+                continue
+            low, high = interval
+            if (low is not None and value < low) or (high is not None and value > high):
+                outside.append(name)
+        if not outside:
+            continue
+        # The same optimum as one found already: the same parameters outside the interval
+        # and the others within 1 % (a parameter that runs off along a flat direction ends
+        # anywhere far out).
+        inside = np.array([name not in outside for name in result.free_names])
+        key = (tuple(outside), end[inside])
+        if any(key[0] == other[0] and np.allclose(key[1], other[1], rtol=1e-2)
+               for other in seen):
+            continue
+        seen.append(key)
+        found.append(OtherOptimum(int(index), values, float(losses[index]), tuple(outside)))
+    return found

@@ -307,7 +307,8 @@ def _result(prepared: Prepared, layout: Layout, options: SolverPlan, out: dict,
         correlation=uncertainty.correlation, loss=loss, loss_name=options.loss, sse=sse,
         n_points=n_points, dof=uncertainty.dof, sigma=uncertainty.sigma, aic=aic, bic=bic,
         n_evaluations=int(out["evaluations"]), n_steps=int(out["steps"]), n_starts=n_starts,
-        start_losses=out["start_losses"], grad_norm=float(out["grad_norm"]),
+        start_losses=out["start_losses"], start_values=out.get("start_values"),
+        grad_norm=float(out["grad_norm"]),
         newton_step=float(out["newton_step"]), wall_time=wall_time, compile_time=compile_time,
         success=converged and bool(np.isfinite(loss)), converged=converged, status=status,
         message=message, method=method, curve=curve, weights=weights,
@@ -722,7 +723,7 @@ class _Passes:
         return [dataclasses.replace(
             r, n_evaluations=int(e), wall_time=float(w), compile_time=float(c),
             method=f"{r.method}; {method}", n_starts=f.n_starts, init_params=f.init_params,
-            settings=settings)
+            start_losses=f.start_losses, start_values=f.start_values, settings=settings)
             for r, f, e, w, c in zip(self.results, first, self.evaluations, self.wall,
                                      self.compile_time, strict=True)]
 

@@ -30,7 +30,7 @@ import numpy as np
 from axialmix._files import write_atomic, write_csv, write_json
 from axialmix.adm import error_estimate as _fv_error_estimate
 from axialmix.analytic import peclet_from_variance_ratio as _peclet_from_variance_ratio
-from fitting.diagnostics import ModelComparison, identifiability
+from fitting.diagnostics import ModelComparison, identifiability, other_optima
 from fitting.drawing import FigureSpec, draw
 from fitting.gridsearch import GridResult
 from fitting.measurement import MEASUREMENT_PARAMETERS, MeasuredModel
@@ -168,6 +168,19 @@ def identifiability_statements(result: FitResult) -> list[str]:
             statements.append(f"Combinations (curvature eigen-analysis, log scale): "
                               f"{diagnosis.summary}.")
     statements.extend(result.model.facts(result.values, result.init_params))
+    for optimum in other_optima(result)[:1]:
+        where = ", ".join(f"{n} = {v:.4g}" for n, v in optimum.values.items())
+        outside = ", ".join(optimum.outside)
+        statements.append(
+            f"Another optimum fits the curve as well: start {optimum.start + 1} ended at "
+            f"{where} (first-fit loss {optimum.loss:.4g}, within the 95 % threshold of the "
+            f"best); there {outside} {'lies' if len(optimum.outside) == 1 else 'lie'} outside "
+            "the 95 % interval above, which describes the neighbourhood of this optimum only: "
+            "the curve does not choose between them.")
+        if result.free_names:
+            for name in optimum.outside:
+                if name not in undetermined:
+                    undetermined.append(name)
     verdict = result.lack_of_fit
     if verdict.tested:
         statements.append(verdict.statement)

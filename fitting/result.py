@@ -182,6 +182,7 @@ class FitResult:
     compile_time: float = 0.0
     settings: FitSettings | None = field(default=None, repr=False)
     error_model: ErrorEstimate | None = field(default=None, repr=False)
+    start_values: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         for name in ("weights", "predicted", "residuals", "jacobian", "start_losses",
@@ -189,6 +190,10 @@ class FitResult:
             array = np.array(getattr(self, name), dtype=float)
             array.flags.writeable = False
             object.__setattr__(self, name, array)
+        if self.start_values is not None:
+            ends = np.array(self.start_values, dtype=float)
+            ends.flags.writeable = False
+            object.__setattr__(self, "start_values", ends)
 
     @property
     def time(self) -> np.ndarray:

@@ -934,6 +934,9 @@ class MultiStartSolver:
                 "all_from_free": out["all_from_free"],
                 "scaled_loss": np.asarray(values[best]),
                 "start_losses": values * float(out["scale"]),
+                # Where each start ended (free values; the polished best start's end for it).
+                "start_values": np.stack([out["free_values"] if s == best else
+                                          o["free_values"] for s, o in enumerate(per_start)]),
                 "grad_norm": out["grad_norm"],
                 "steps": np.asarray(steps),
                 "evaluations": np.asarray(evaluations),

@@ -1,0 +1,61 @@
+"""Other optima of a multi-start fit: starts that ended elsewhere with a loss as low as the
+best one's, where a parameter lies outside the fit's interval, are said."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from axialmix.analytic import exit_age_closed
+from fitting.data import read_rtd_csv
+from fitting.diagnostics import other_optima
+from fitting.fit import fit
+from fitting.measurement import measured
+from fitting.parameters import Parameter
+from fitting.report import identifiability_statements
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "incline_plus7p5.csv"
+
+
+def test_the_four_compartment_twin_is_said_and_its_parameter_not_called_determined():
+    # With k_r tied to k_f the RTD is unchanged when k_f and k_s are exchanged: the starts
+    # end at both twins, and the interval of one twin's k_s excludes the other's.
+    curve = read_rtd_csv(EXAMPLE, normalise=False)
+    result = fit(measured("four-compartment"), curve,
+                 {"k_out": Parameter(0.8, vary=False, min=0.0),
+                  "k_r": Parameter(1.0, expr="k_f", min=0.0)},
+                 errors="combined", n_starts=8)
+    optima = other_optima(result)
+    assert optima, result.start_losses
+    best = float(np.min(result.start_losses))
+    for optimum in optima:
+        assert optimum.loss <= best * (1 + 2.6**2 / (result.n_points - 3))
+        for name in optimum.outside:
+            low, high = result.ci95[name]
+            assert not low <= optimum.values[name] <= high
+    # Exchanging k_f and k_s of the best fit gives the other twin's values.
+    twin = optimum_near(optima, result.values["k_s"], result.values["k_f"])
+    assert twin is not None
+    text = " ".join(identifiability_statements(result))
+    assert "Another optimum fits the curve as well" in text
+    undetermined = next(s for s in identifiability_statements(result)
+                        if s.startswith("Not determined by this curve"))
+    for name in optima[0].outside:
+        assert name in undetermined
+
+
+def optimum_near(optima, k_f, k_s):
+    for optimum in optima:
+        values = optimum.values
+        if (abs(np.log(values["k_f"] / k_f)) < 0.05
+                and (abs(np.log(values["k_s"] / k_s)) < 0.05 or min(k_s, values["k_s"]) > 1e3)):
+            return optimum
+    return None
+
+
+def test_a_fit_with_one_optimum_has_no_other():
+    t = np.linspace(0.0, 60.0, 40)
+    y = np.asarray(exit_age_closed(t, 10.0, 8.0))
+    y = y + 0.01 * y.max() * np.random.default_rng(0).standard_normal(t.size)
+    assert other_optima(fit("adm", (t, y))) == []
