@@ -315,7 +315,7 @@ class FitResult:
             f"    degrees of freedom = {self.dof:.4g}",
             f"    loss ({self.loss_name})         = {self.loss:.6g}",
             f"    sum of squares     = {self.sse:.6g}",
-            f"    residual std (s)   = {self.sigma:.6g}",
+            f"    residual scale s   = {self.sigma:.6g} ({self._scale_meaning()})",
             f"    AIC                = {self.aic:.4f}",
             f"    BIC                = {self.bic:.4f}",
             "[[Lack of fit]]",
@@ -354,6 +354,21 @@ class FitResult:
             for _, a, b, r in sorted(pairs, reverse=True):
                 lines.append(f"    C({a}, {b}) = {r:+.4f}")
         return "\n".join(lines)
+
+    def _scale_meaning(self) -> str:
+        """What ``s = sqrt(Σ w r² / dof)`` measures under this fit's error model, in words."""
+        kind = self.error_model.kind if self.error_model is not None else "absolute"
+        unit = self.curve.value_unit or ("1/" + self.time_unit if self.curve.normalised
+                                         else "in the data's unit")
+        if kind == "relative":
+            return "the noise as a fraction of the model"
+        if kind == "combined":
+            return "the weighted residuals' scale, weights from the estimated noise sizes"
+        if kind == "poisson":
+            return "Pearson's, 1 expected for counts"
+        if np.all(self.weights[self.weights > 0] == 1.0):
+            return f"the noise's standard deviation, {unit}"
+        return "the weighted residuals' scale"
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready summary (plain floats, ``None`` for undefined numbers)."""
