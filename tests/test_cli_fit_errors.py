@@ -142,7 +142,7 @@ CASES = [
      "--starts"),
     ("unknown model", {"good.csv": GOOD}, ["{good.csv}", "--model", "nonsense"], "--model"),
     ("--length 0", {"good.csv": GOOD}, ["{good.csv}", "--length", "0"], "--length"),
-    ("--errors poisson", {"good.csv": GOOD}, ["{good.csv}", "--errors", "poisson"], "--errors"),
+    ("--errors lognormal", {"good.csv": GOOD}, ["{good.csv}", "--errors", "lognormal"], "--errors"),
     # --out.
     ("--out under a file", {"good.csv": GOOD, "a_file": "x"},
      ["{good.csv}", "--out", "{a_file}/results"], "{a_file}/results: --out"),
