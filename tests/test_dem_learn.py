@@ -162,3 +162,66 @@ def test_axial_cells_and_cell_length_rule():
     # 2 D_z / |v|: the trial's section, D_z 100 mm²/s, v -34 mm/s: about 6 mm cells.
     assert cell_length_limit(-0.034, 100e-6) == pytest.approx(2 * 100e-6 / 0.034)
     assert cell_length_limit(0.0, 1e-4) == float("inf")
+
+
+def test_simulate_runs_a_learned_network_file_as_it_is(tmp_path, capsys):
+    import json
+
+    from fitting.cli import main
+
+    network, _, _ = _ring()
+    learned = learn_network(_tracked_sequences(network, 2000, seed=5), N_CELLS, DT, 1, 100)
+    path = tmp_path / "network.json"
+    learned.network().to_json(path)
+    out = tmp_path / "run.json"
+    assert main(["simulate", "network", str(path), "--particles", "6000", "--step", str(DT),
+                 "--tracer", "C1", "--steps", "40", "--report-every", "20", "--seed", "3",
+                 "--json", str(out), "--quiet"]) == 0
+    assert "tracer in C1" in capsys.readouterr().out
+    data = json.loads(out.read_text())
+    # The mean field of the network the particles ran (hold-ups and moves rounded to whole
+    # particles): n(t) = expm(K t) n(0), K from its per-step rates. Each count is a sum of
+    # nearly independent moves, so it lies within a few binomial standard deviations.
+    ran = ParticleNetwork.from_network(CompartmentNetwork.from_json(path), total_particles=6000,
+                                       time_step=DT, round_moves=True).to_network()
+    names = list(ran.compartments)
+    generator = np.zeros((len(names), len(names)))
+    for c in ran.connections:
+        i, j = names.index(c.source), names.index(c.target)
+        generator[j, i] += c.rate / DT
+        generator[i, i] -= c.rate / DT
+    start = np.asarray(data["reports"][0]["tracer_counts"], float)
+    assert start[0] == data["tracer"]["particles"] and start[1:].sum() == 0
+    last = data["reports"][-1]
+    expected = scipy.linalg.expm(generator * last["time_s"]) @ start
+    holdups = np.asarray(data["holdups"], float)
+    spread = np.sqrt(expected * (1 - expected / holdups)) + 1.0
+    assert np.all(np.abs(np.asarray(last["tracer_counts"]) - expected) <= 5 * spread)
+    assert sum(last["tracer_counts"]) == data["tracer"]["particles"]  # conserved
+    assert last["chi_square"] < data["reports"][0]["chi_square"]
+
+
+def test_simulate_network_refuses_an_open_network_and_an_unknown_tracer(tmp_path, capsys):
+    from fitting.cli import main
+
+    open_network = tmp_path / "open.json"
+    open_network.write_text(json_text({
+        "compartments": [{"name": "a", "holdup": 10}, {"name": "b", "holdup": 10}],
+        "connections": [{"source": "a", "target": "b", "rate": 1.0}],
+        "inlets": [{"compartment": "a", "fraction": 1.0}],
+        "outlets": [{"compartment": "b", "rate": 1.0}]}))
+    assert main(["simulate", "network", str(open_network), "--quiet"]) == 2
+    assert "runs closed networks" in capsys.readouterr().err
+    network, _, _ = _ring()
+    learned = learn_network(_tracked_sequences(network, 500, seed=1), N_CELLS, DT, 1, 50)
+    closed = tmp_path / "closed.json"
+    learned.network().to_json(closed)
+    assert main(["simulate", "network", str(closed), "--tracer", "nowhere", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--tracer: no compartment nowhere" in err[0]
+
+
+def json_text(data):
+    import json
+
+    return json.dumps(data)

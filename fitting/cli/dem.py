@@ -3,7 +3,8 @@
 Sub-commands, each writing fixed file names into ``--out DIR``:
 
 * ``axialmix dem learn``: run a DEM section (or read a run saved before, ``--run``), learn
-  the network of its cells: ``network.json`` (a network file :mod:`axialmix.network` reads),
+  the network of its cells: ``network.json`` (a network file :mod:`axialmix.network` and
+  ``axialmix simulate network`` read),
   ``rates.csv`` (every connection's rate and 95 % bootstrap interval), ``learn.json`` (the
   DEM's v, D_z and Pe from its tracks beside the network's equivalent ADM, the Markov test,
   the cell-length rule) and ``run.npz`` (the recorded run, for ``--run``).

@@ -4,9 +4,14 @@
 exchanges per step) from a loading and reports, for each reported step, the species-1 count
 of every compartment and the chi-square homogeneity statistic. ``axialmix simulate
 continuous`` runs a continuous blender (four-compartment or axial x radial grid) with a
-tracer pulse; it writes its RTD (``--rtd-csv``) and its outflow samples (``--samples-csv``)
-as CSV files that ``axialmix fit`` reads as they are (header ``t [s]`` and one value
-column), and everything as JSON (``--json``).
+tracer pulse; it writes its RTD (``--rtd-csv``: a histogram of the tracer particles leaving,
+``t [s]``, ``count``, ``bin [s]`` and ``E [1/s]``, which ``axialmix fit`` reads as counts with
+counting errors) and its outflow samples (``--samples-csv``: ``t [s]`` and one value column),
+and everything as JSON (``--json``). ``axialmix simulate network NET.json`` runs a closed
+network from a file as :mod:`axialmix.network` reads it (the ``network.json`` that
+``axialmix dem learn`` writes, say): a tracer loaded into some compartments (``--tracer``)
+mixes through the others, and each report gives its count per compartment and the
+chi-square of its spread.
 
 Exit status (:mod:`axialmix._exits`): 0 done; 2 bad input, one line ``axialmix simulate:
 error: ...`` naming the option, nothing written (runs that would not fit in memory are
@@ -25,6 +30,7 @@ import re
 import signal
 import sys
 import threading
+from pathlib import Path
 
 __all__ = ["add_parser", "run"]
 
@@ -197,6 +203,30 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     _common(vblender, 30_000)
 
+    learned = kinds.add_parser(
+        "network",
+        help="a closed network from a file (a network learned from DEM, say)",
+        description="A closed compartment network from a network file (JSON or TOML, as "
+        "axialmix.network reads it, e.g. the network.json of `axialmix dem learn`): a tracer "
+        "loaded into some compartments mixes through the others; its counts per compartment "
+        "and the chi-square of its spread per report.",
+    )
+    learned.add_argument("network", metavar="NET.json", help="the network file (.json or .toml)")
+    learned.add_argument(
+        "--particles", type=_positive_int, default=10_000,
+        help="particles in all, shared out by the network's hold-ups (default: 10000)",
+    )
+    learned.add_argument(
+        "--step", type=_positive_float, default=None, metavar="SECONDS",
+        help="step length [s] of a continuous-time network (default: the network's own step, "
+        "else the one at which the fastest compartment hands on a tenth of its particles)",
+    )
+    learned.add_argument(
+        "--tracer", default=None, metavar="NAME[,NAME...]",
+        help="compartments whose particles are the tracer at the start (default: the first)",
+    )
+    _common(learned, 1000)
+
     continuous = kinds.add_parser(
         "continuous",
         help="continuous blender with a tracer pulse",
@@ -294,6 +324,8 @@ def run(args: argparse.Namespace) -> int:
 
         if args.blender == "vblender":
             return _run_vblender(args)
+        if args.blender == "network":
+            return _run_network(args)
         return _run_continuous(args)
     except _BadInput as error:
         return error_line(_COMMAND, str(error))
@@ -448,6 +480,107 @@ def _run_vblender(args) -> int:
         "interrupted": result.interrupted,
         "wall_seconds": result.wall_seconds,
         "reports": reports,
+    }
+    writers = [] if args.json is None else [lambda: write_json(args.json, data)]
+    return _finish(args, result, writers)
+
+
+# ------------------------------------------------------------------ network file
+#: Share of its particles the fastest compartment hands on per step by default.
+_DEFAULT_STEP_SHARE = 0.1
+
+
+def _read_network_file(path: str):
+    from axialmix.network import CompartmentNetwork
+
+    file = Path(path)
+    if not file.is_file():
+        raise _BadInput(f"{path}: no such network file")
+    try:
+        if file.suffix.lower() == ".toml":
+            return CompartmentNetwork.from_toml(file)
+        return CompartmentNetwork.from_json(file)
+    except (ValueError, OSError) as error:
+        raise _BadInput(f"{path}: {str(error).rstrip('.')}") from None
+
+
+def _run_network(args) -> int:
+    import numpy as np
+
+    from axialmix._files import write_json
+    from axialmix.particles import ParticleNetwork, chi_square
+
+    _check_outputs(json=args.json)
+    network = _read_network_file(args.network)
+    if network.inlets or network.outlets:
+        raise _BadInput(f"{args.network}: the network has inlets or outlets; `simulate network` "
+                        "runs closed networks (a batch, or a periodic section)")
+    if network.holdups is None:
+        raise _BadInput(f"{args.network}: the network gives no hold-ups; a particle "
+                        "simulation shares its particles out by them")
+    step = args.step
+    if network.time_step is not None:
+        if step is not None and step != network.time_step:
+            raise _BadInput(f"--step {step:g}: the network is discrete with steps of "
+                            f"{network.time_step:g} s")
+        step = network.time_step
+    elif step is None:
+        # Continuous rates (1/s): a step at which no compartment hands on more than a tenth
+        # of its particles, so that moving whole particles once a step follows the rates.
+        outflow = np.zeros(len(network.compartments))
+        for connection in network.connections:
+            outflow[network.compartments.index(connection.source)] += connection.rate
+        fastest = float(outflow.max()) if outflow.size else 0.0
+        if not fastest > 0:
+            raise _BadInput(f"{args.network}: no connection has a positive rate")
+        step = _DEFAULT_STEP_SHARE / fastest
+    tracer_names = [network.compartments[0]] if args.tracer is None else [
+        n.strip() for n in args.tracer.split(",") if n.strip()]
+    unknown = [n for n in tracer_names if n not in network.compartments]
+    if unknown or not tracer_names:
+        raise _BadInput(f"--tracer: no compartment {', '.join(unknown) or '(none given)'} in "
+                        f"{args.network} (compartments: {', '.join(network.compartments[:8])}"
+                        f"{', ...' if len(network.compartments) > 8 else ''})")
+    with _option("--particles/--step"):
+        particles = ParticleNetwork.from_network(network, total_particles=args.particles,
+                                                 time_step=step if network.time_step is None
+                                                 else None, round_moves=True)
+    holdups = np.asarray(particles.holdups)
+    is_tracer = np.isin(np.asarray(particles.names), tracer_names)
+    initial = np.column_stack([np.where(is_tracer, 0, holdups), np.where(is_tracer, holdups, 0)])
+    reports = 2 + (args.steps // args.report_every if args.report_every else 200)
+    _check_memory(args, particles, args.steps, 2, reports, 0)
+    result = _simulate(args, particles, initial, args.steps, args.report_every)
+    wanted = [
+        (int(k), counts) for k, counts in zip(result.report_steps, result.counts, strict=True)
+        if k in (0, result.steps_completed)
+        or (args.report_every is not None and k % args.report_every == 0)
+    ]
+    rows = [{"step": k, "time_s": k * step, "tracer_counts": counts[:, 1].tolist(),
+             "chi_square": chi_square(counts, 1)} for k, counts in wanted]
+    tracer_total = int(initial[:, 1].sum())
+    print(f"{args.network}: {len(particles.names)} compartments, {particles.n_particles} "
+          f"particles ({tracer_total} tracer in {', '.join(tracer_names)}), steps of {step:.4g} s")
+    print(f"{'step':<9} {'time [s]':>10} {'chi-square':>12}  tracer compartments (of "
+          f"{len(particles.names)})")
+    for row in rows:
+        held = sum(c > 0 for c in row["tracer_counts"])
+        print(f"{row['step']:<9} {row['time_s']:>10.4g} {row['chi_square']:>12.6g}  {held}")
+    data = {
+        "blender": "network",
+        "network": str(args.network),
+        "engine": result.engine,
+        "seed": result.seed,
+        "particles": particles.n_particles,
+        "step_seconds": step,
+        "compartments": list(particles.names),
+        "holdups": holdups.tolist(),
+        "tracer": {"compartments": tracer_names, "particles": tracer_total},
+        "steps_requested": result.steps_requested,
+        "steps_completed": result.steps_completed,
+        "interrupted": result.interrupted,
+        "wall_seconds": result.wall_seconds,
+        "reports": rows,
     }
     writers = [] if args.json is None else [lambda: write_json(args.json, data)]
     return _finish(args, result, writers)
