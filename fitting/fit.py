@@ -437,8 +437,24 @@ def _error_plan(settings: FitSettings) -> ErrorPlan:
 
 
 def _exposures(curves: Sequence[Curve]) -> list[np.ndarray]:
-    """Each curve's exposure (counts per unit value; ones where a curve gives none)."""
-    return [c.exposure if c.exposure is not None else np.ones(len(c)) for c in curves]
+    """Each curve's exposure (counts per unit value; ones where a curve gives none), after
+    checking that value × exposure is a count at every point (a whole number, at least 0)."""
+    exposures = []
+    for curve in curves:
+        x = curve.exposure if curve.exposure is not None else np.ones(len(curve))
+        counts = x * curve.value
+        off = np.abs(counts - np.rint(counts)) > 1e-6 * np.maximum(1.0, np.abs(counts))
+        bad = np.flatnonzero(off | (counts < 0))
+        if bad.size:
+            i = int(bad[0])
+            label = f"curve {curve.name!r}" if curve.name else "the curve"
+            raise ValueError(
+                f"counting errors need counts: {label} has {counts[i]:.6g} particles at t = "
+                f"{curve.time[i]:g} {curve.time_unit} (value x exposure, not a whole number at "
+                "least 0); read the histogram with its 'count' column, give the curve its "
+                "exposure (bin widths), or choose another error model")
+        exposures.append(x)
+    return exposures
 
 
 def _reweighting(settings: FitSettings) -> str | None:

@@ -250,3 +250,19 @@ def test_a_study_of_histogram_files_uses_counting_errors_too(tmp_path, capsys):
     assert "counting errors:" in capsys.readouterr().out
     records = json.loads((tmp_path / "study" / "summary.json").read_text())["curves"]
     assert [r["error_model"]["kind"] for r in records] == ["poisson"] * 3
+
+
+def test_counting_errors_on_values_that_are_no_counts_are_refused(tmp_path, capsys):
+    from fitting.cli import main
+
+    t = np.linspace(0.0, 60.0, 30)
+    signal = np.asarray(exit_age_closed(t, 10.0, 8.0))
+    with pytest.raises(ValueError, match="counting errors need counts"):
+        fit("adm", (t, signal), errors="poisson")
+    path = tmp_path / "signal.csv"
+    path.write_text("t,c\n" + "".join(f"{a:g},{b:.6g}\n" for a, b in zip(t, signal, strict=True)))
+    assert main(["fit", str(path), "--model", "adm", "--errors", "poisson", "--out",
+                 str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "counting errors need counts" in err[0]
+    assert not (tmp_path / "out").exists()
