@@ -14,6 +14,7 @@ from fitting.fit import fit
 from fitting.measurement import measured
 from fitting.parameters import Parameter
 from fitting.report import identifiability_statements
+from fitting.solve import MultiStart
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "data" / "incline_plus7p5.csv"
 
@@ -25,7 +26,7 @@ def test_the_four_compartment_twin_is_said_and_its_parameter_not_called_determin
     result = fit(measured("four-compartment"), curve,
                  {"k_out": Parameter(0.8, vary=False, min=0.0),
                   "k_r": Parameter(1.0, expr="k_f", min=0.0)},
-                 errors="combined", n_starts=8)
+                 errors="combined", multistart=MultiStart(n_starts=8))
     optima = other_optima(result)
     assert optima, result.start_losses
     best = float(np.min(result.start_losses))
