@@ -85,7 +85,7 @@ _VALUE_NAMES = {
 }
 #: Column names of particle counts and of their bin widths (counting curves).
 _COUNT_NAMES = {"count", "counts", "particles", "particle_count", "particle_counts"}
-_BIN_NAMES = {"bin", "bins", "bin_width", "width", "bin_s"}
+_BIN_NAMES = {"bin", "bins", "bin_width", "width"}
 _TIME_UNITS = {
     "s": "s", "sec": "s", "secs": "s", "second": "s", "seconds": "s",
     "ms": "ms", "millisecond": "ms", "milliseconds": "ms",
@@ -451,14 +451,11 @@ def counting_columns(table: Table, time_column: str | int | None = None,
 
 
 def _bin_unit_factor(table: Table, column: Column, time_unit: str) -> float:
-    """Time units (of the time column) in one unit of a bin-width column."""
+    """Time units (of the time column) in one unit of a bin-width column (its header's unit,
+    read as a time column's is; none: the time column's)."""
     if column.unit is None:
         return 1.0
-    unit = _TIME_UNITS.get(column.unit.lower())
-    if unit is None:
-        raise table.error(f"unknown time unit {column.unit!r} in {column.label!r} "
-                          "(known: s, ms, min, h)")
-    return seconds_per(unit) / seconds_per(time_unit)
+    return seconds_per(column_time_unit(table, column)) / seconds_per(time_unit)
 
 
 def column_time_unit(table: Table, column: Column) -> str:

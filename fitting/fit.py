@@ -812,15 +812,6 @@ _COUNTING_METHOD = ("counting (Poisson) errors: reweighted by exposure/model unt
                     "the maximum-likelihood fit")
 
 
-def _settings_with_counting(result: FitResult) -> FitSettings:
-    """`result`'s settings with counting errors (the defaults when it has none)."""
-    settings = result.settings if result.settings is not None else FitSettings()
-    if settings.counting_errors is not None:
-        return settings
-    return with_error_model(dataclasses.replace(settings, relative_errors=None,
-                                                combined_errors=None), "poisson")
-
-
 def _with_counting_errors(result: FitResult, passes: int) -> FitResult:
     """A fit to counts with the known Poisson scale: standard errors and covariance from
     ``(Jᵀ W J)⁻¹`` with ``W = x / m`` (not rescaled by the residuals), 95 % intervals from
@@ -831,21 +822,13 @@ def _with_counting_errors(result: FitResult, passes: int) -> FitResult:
         f"{result.method}; {_COUNTING_METHOD} ({passes} passes)")
     # Pearson's X² / dof on the merged bins (that of bins expecting a fraction of a particle
     # scatters far more than a chi-square's: Var((k - μ)²/μ) = 2 + 1/μ).
-    merged = dataclasses.replace(result, settings=_settings_with_counting(result)).lack_of_fit
+    merged = result.lack_of_fit  # its settings hold the counting errors: on merged bins
     dispersion = merged.scaled_sse if merged.scaled_sse is not None else math.nan
     if not (sigma is not None and math.isfinite(sigma) and sigma > 0):
         return dataclasses.replace(result, method=method,
                                    error_model=ErrorEstimate("poisson", 0.0, dispersion, passes))
     factor = 1.0 / sigma
-    quantile = t_quantile(math.inf)
-    stderr, ci95 = {}, {}
-    for name, error in result.stderr.items():
-        if error is None:
-            stderr[name], ci95[name] = None, None
-            continue
-        stderr[name] = error * factor
-        ci95[name] = interval(result.values[name], quantile * stderr[name],
-                               result.init_params[name])
+    stderr, ci95 = _rescaled_errors(result, factor, t_quantile(math.inf))
     exposure = result.exposure
     log_likelihood = poisson_log_likelihood(result.observed, result.predicted, exposure)
     n_free = len(result.free_names)
@@ -935,11 +918,9 @@ def _with_effective_dof(result: FitResult) -> FitResult:
     return _with_degrees_of_freedom(result, dof)
 
 
-def _with_degrees_of_freedom(result: FitResult, dof: float) -> FitResult:
-    """`result` with ``s² = Σ w r² / dof``: standard errors, covariance and ``s`` rescaled by
-    ``sqrt(result.dof / dof)``, intervals from the Student t of `dof` degrees of freedom."""
-    factor = math.sqrt(result.dof / dof)
-    quantile = t_quantile(dof)
+def _rescaled_errors(result: FitResult, factor: float, quantile: float):
+    """Standard errors times `factor` and the 95 % intervals they give with `quantile`
+    (``None`` kept for parameters without an error)."""
     stderr, ci95 = {}, {}
     for name, error in result.stderr.items():
         if error is None:
@@ -947,7 +928,15 @@ def _with_degrees_of_freedom(result: FitResult, dof: float) -> FitResult:
             continue
         stderr[name] = error * factor
         ci95[name] = interval(result.values[name], quantile * stderr[name],
-                               result.init_params[name])
+                              result.init_params[name])
+    return stderr, ci95
+
+
+def _with_degrees_of_freedom(result: FitResult, dof: float) -> FitResult:
+    """`result` with ``s² = Σ w r² / dof``: standard errors, covariance and ``s`` rescaled by
+    ``sqrt(result.dof / dof)``, intervals from the Student t of `dof` degrees of freedom."""
+    factor = math.sqrt(result.dof / dof)
+    stderr, ci95 = _rescaled_errors(result, factor, t_quantile(dof))
     return dataclasses.replace(result, stderr=stderr, ci95=ci95,
                                covariance=result.covariance * factor**2,
                                sigma=result.sigma * factor, dof=dof)

@@ -55,6 +55,7 @@ __all__ = [
     "CombinedErrors",
     "CountingErrors",
     "ErrorEstimate",
+    "check_passes",
     "counting_weights",
     "poisson_log_likelihood",
     "combined_weights",
@@ -153,10 +154,18 @@ class CombinedErrors(eqx.Module):
     change: float = eqx.field(default=1e-8, static=True)
 
     def __check_init__(self):
-        if not self.max_passes >= 2:
-            raise ValueError(f"max_passes must be at least 2, got {self.max_passes}")
-        if not self.change > 0:
-            raise ValueError(f"change must be positive, got {self.change}")
+        check_passes(self.max_passes, self.change)
+
+
+def check_passes(max_passes: int, change: float, floor: float | None = None) -> None:
+    """The checks every iterated-weights setting shares: at least 2 fits, a positive
+    `change`, and a `floor` (when the setting has one) inside (0, 1); ``ValueError`` else."""
+    if floor is not None and not 0 < floor < 1:
+        raise ValueError(f"floor must lie in (0, 1), got {floor}")
+    if not max_passes >= 2:
+        raise ValueError(f"max_passes must be at least 2, got {max_passes}")
+    if not change > 0:
+        raise ValueError(f"change must be positive, got {change}")
 
 
 class CountingErrors(eqx.Module):
@@ -182,12 +191,7 @@ class CountingErrors(eqx.Module):
     change: float = eqx.field(default=1e-8, static=True)
 
     def __check_init__(self):
-        if not 0 < self.floor < 1:
-            raise ValueError(f"floor must lie in (0, 1), got {self.floor}")
-        if not self.max_passes >= 2:
-            raise ValueError(f"max_passes must be at least 2, got {self.max_passes}")
-        if not self.change > 0:
-            raise ValueError(f"change must be positive, got {self.change}")
+        check_passes(self.max_passes, self.change, self.floor)
 
 
 def counting_weights(model_values: np.ndarray, exposure: np.ndarray,

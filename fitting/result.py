@@ -16,7 +16,7 @@ import equinox as eqx
 import numpy as np
 
 from fitting.data import Curve
-from fitting.losses import CombinedErrors, CountingErrors, ErrorEstimate
+from fitting.losses import CombinedErrors, CountingErrors, ErrorEstimate, check_passes
 from fitting.models import Model
 from fitting.parameters import Parameters
 from fitting.residuals import LackOfFit, counting_lack_of_fit, lack_of_fit_test
@@ -48,12 +48,7 @@ class RelativeErrors(eqx.Module):
     change: float = eqx.field(default=1e-8, static=True)
 
     def __check_init__(self):
-        if not 0 < self.floor < 1:
-            raise ValueError(f"floor must lie in (0, 1), got {self.floor}")
-        if not self.max_passes >= 2:
-            raise ValueError(f"max_passes must be at least 2, got {self.max_passes}")
-        if not self.change > 0:
-            raise ValueError(f"change must be positive, got {self.change}")
+        check_passes(self.max_passes, self.change, self.floor)
 
 
 class FitSettings(eqx.Module):

@@ -421,6 +421,13 @@ def _simulate(args, network, initial, steps: int, report_every: int | None, **op
         bar.close()
 
 
+def _run_record(result) -> dict:
+    """How far a run got and how long it took, for every sub-command's JSON."""
+    return {"steps_requested": result.steps_requested,
+            "steps_completed": result.steps_completed,
+            "interrupted": result.interrupted, "wall_seconds": result.wall_seconds}
+
+
 def _finish(args, result, writers: list) -> int:
     """Write the outputs (each atomically) and return 0, or 130 when the run was interrupted."""
     from axialmix._exits import INTERRUPTED, OK
@@ -475,10 +482,7 @@ def _run_vblender(args) -> int:
         "exchanges": list(args.exchanges),
         "loading": args.loading,
         "compartments": list(network.names),
-        "steps_requested": result.steps_requested,
-        "steps_completed": result.steps_completed,
-        "interrupted": result.interrupted,
-        "wall_seconds": result.wall_seconds,
+        **_run_record(result),
         "reports": reports,
     }
     writers = [] if args.json is None else [lambda: write_json(args.json, data)]
@@ -576,10 +580,7 @@ def _run_network(args) -> int:
         "compartments": list(particles.names),
         "holdups": holdups.tolist(),
         "tracer": {"compartments": tracer_names, "particles": tracer_total},
-        "steps_requested": result.steps_requested,
-        "steps_completed": result.steps_completed,
-        "interrupted": result.interrupted,
-        "wall_seconds": result.wall_seconds,
+        **_run_record(result),
         "reports": rows,
     }
     writers = [] if args.json is None else [lambda: write_json(args.json, data)]
@@ -720,10 +721,7 @@ def _run_continuous(args) -> int:
         "throughput_per_step": network.throughput,
         "mean_residence_time_s": tau,
         "tracer": {"step": tracer.step, "particles": tracer.particles, "species": tracer_species},
-        "steps_requested": result.steps_requested,
-        "steps_completed": result.steps_completed,
-        "interrupted": result.interrupted,
-        "wall_seconds": result.wall_seconds,
+        **_run_record(result),
         "rtd": {
             "time_s": times.tolist(),
             "exit_age_per_s": exit_age.tolist(),
