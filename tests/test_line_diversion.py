@@ -342,3 +342,32 @@ def test_conservative_window_of_an_exchange_fit_on_tables_equals_the_exact_sampl
           f"{float(exact.stop):.9f}")
     assert abs(float(tabled.start - exact.start)) < 1e-4 * length
     assert abs(float(tabled.stop - exact.stop)) < 1e-4 * length
+
+
+def test_exchange_samples_on_series_tables_equal_those_on_exact_tables(monkeypatch):
+    """Each sample's table from the Fourier series (checked at 16 nodes against the exact
+    inversion) against the table of its exact values at every node, which a tolerance of 0
+    forces for every sample (through the fallback that recomputes missed samples)."""
+    import axialmix.line._diversion as diversion
+
+    names = ("tau", "peclet", "beta", "k_d")
+    values = np.array([EXCHANGE[n] for n in names])
+    covariance = np.diag((0.03 * values) ** 2)
+    factory = FittedRTD.from_parameters("closed_closed_exchange", EXCHANGE, free=names,
+                                        covariance=covariance)
+    disturbance = Disturbance.square(20.0, 3.0, 1.0, value_unit="%")
+    times = np.linspace(0.0, 60.0, 401)
+    limits = {"target": 100.0, "lower": 95.0, "upper": 105.0}
+    series = conservative_diversion_window(factory, values, covariance, disturbance, times,
+                                           samples=16, seed=2, **limits)
+    assert series.tables.terms is not None and series.tables.exact == 0
+    assert series.tables.error <= diversion.FOURIER_TOLERANCE
+    assert series.to_dict()["sample_table"]["method"] == "fourier series"
+    monkeypatch.setattr(diversion, "FOURIER_TOLERANCE", 0.0)
+    exact = conservative_diversion_window(factory, values, covariance, disturbance, times,
+                                          samples=16, seed=2, **limits)
+    assert exact.tables.exact == 16 and np.isnan(exact.tables.error)
+    np.testing.assert_allclose(np.asarray(series.sample_starts), np.asarray(exact.sample_starts),
+                               rtol=0, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(series.sample_stops), np.asarray(exact.sample_stops),
+                               rtol=0, atol=1e-6)

@@ -35,6 +35,7 @@ from jax import Array
 from jax.typing import ArrayLike
 
 from axialmix._validation import require_finite, require_increasing_times, require_positive
+from axialmix.analytic.fourier import grid_inversion, truncation_estimates
 from axialmix.line._disturbance import Disturbance, lag_horizon, response_at
 from axialmix.line._line import Line, TabulatedRTD, as_evaluator
 from axialmix.line._throughput import FlowSchedule
@@ -86,6 +87,17 @@ NOMINAL_TABLE_INTERVALS = 2048
 #: The coarsest table is taken whose nominal outlet agrees with the exact one at every scan
 #: time within this share of the limits' width; if none does, the samples use the exact unit.
 TABLE_TOLERANCE = 1e-4
+#: The samples' tables come from the Fourier series of :func:`~axialmix.analytic.fourier.
+#: grid_inversion` (one FFT a sample instead of a contour a node) when its error, estimated
+#: by the series of half the terms and measured against the exact inversion at
+#: :data:`CHECK_NODES` nodes, is at most this (F, and E times the horizon); a sample beyond it
+#: is tabulated by the exact inversion.
+FOURIER_TOLERANCE = 1e-7
+#: Nodes of each sample's table checked against the exact inversion (the samples' settle
+#: check at the scan's candidate ends shares that program).
+CHECK_NODES = 16
+#: Most terms of a sample's Fourier series (above, the samples are inverted exactly).
+MAX_FOURIER_TERMS = 2**18
 
 
 def memory_budget() -> int:
@@ -527,6 +539,24 @@ def sample_units(
     return jax.vmap(unit_factory)(parameters), parameters
 
 
+class SampleTables(eqx.Module):
+    """How the samples' tables of a numerically inverted unit were made.
+
+    - `intervals`: the table's intervals.
+    - `terms`: terms of the Fourier series (None: every sample inverted exactly).
+    - `exact`: samples tabulated by the exact inversion (their series missed
+      :data:`FOURIER_TOLERANCE`, or no series was used).
+    - `error`: the largest error of the series tables used (their estimate and the
+      difference from the exact inversion at :data:`CHECK_NODES` nodes; F, and E times the
+      horizon; dimensionless), NaN when none was used.
+    """
+
+    intervals: int = eqx.field(static=True)
+    terms: int | None = eqx.field(static=True)
+    exact: int = eqx.field(static=True)
+    error: float = eqx.field(static=True)
+
+
 class ConservativeDiversion(eqx.Module):
     """A diversion window with its uncertainty, from samples of a fit's parameters.
 
@@ -554,6 +584,7 @@ class ConservativeDiversion(eqx.Module):
     - `table_difference`: the largest difference between the nominal outlet from such a table
       and the exact one over the nominal scan (content unit; at most
       :data:`TABLE_TOLERANCE` of the limits' width).
+    - `tables`: how those tables were made (:class:`SampleTables`), or None.
     """
 
     nominal: DiversionWindow
@@ -573,6 +604,7 @@ class ConservativeDiversion(eqx.Module):
     amount_unit: str = eqx.field(static=True, default="")
     table_intervals: int | None = eqx.field(static=True, default=None)
     table_difference: float = eqx.field(static=True, default=float("nan"))
+    tables: SampleTables | None = None
 
     def to_dict(self) -> dict:
         """Plain JSON-ready dict: the nominal and the conservative window and how it was made."""
@@ -593,6 +625,11 @@ class ConservativeDiversion(eqx.Module):
             "sample_table": None if self.table_intervals is None else {
                 "intervals": self.table_intervals,
                 "nominal_outlet_difference": _number(self.table_difference),
+                **({} if self.tables is None else {
+                    "method": "exact" if self.tables.terms is None else "fourier series",
+                    "series_terms": self.tables.terms,
+                    "exact_samples": self.tables.exact,
+                    "series_error": _number(self.tables.error)}),
             },
             "time_unit": self.time_unit,
             "amount_unit": self.amount_unit,
@@ -799,30 +836,109 @@ def _pad_rows(parameters, batch: int):
                                                    axis=0)])
 
 
-def _sample_tables(unit_factory, parameters, disturbance, scan, step: float, batch: int):
-    """Each sample's exact node values on the grid of :func:`_sample_grid`: ``(step, F, E)``
-    with ``(samples, N + 1)`` arrays, and the horizon."""
+def _unit_transfer(unit: Unit):
+    return lambda s: unit.model.transfer_function(s, unit.parameters, unit.structure)
+
+
+@functools.partial(eqx.filter_jit)
+def _fourier_estimates(unit, horizon, intervals, max_terms, exit_age):
+    return truncation_estimates(_unit_transfer(unit), horizon, intervals, max_terms,
+                                exit_age=exit_age)
+
+
+def _fourier_terms(unit: Unit, horizon: float, intervals: int, exit_age: bool) -> int | None:
+    """Terms of the samples' Fourier series: twice the fewest whose estimate on the nominal
+    unit is a tenth of :data:`FOURIER_TOLERANCE` (a margin for the samples' spread), or None
+    when :data:`MAX_FOURIER_TERMS` do not reach it."""
+    estimates = np.asarray(_fourier_estimates(unit, float(horizon), intervals,
+                                              MAX_FOURIER_TERMS // 2, exit_age))
+    good = np.flatnonzero(estimates <= 0.1 * FOURIER_TOLERANCE)
+    return None if good.size == 0 else 8 * intervals * 2 ** int(good[0])
+
+
+@functools.partial(eqx.filter_jit)
+def _fourier_sample_curves(unit_factory, parameters, horizon, intervals, terms, exit_age,
+                           batch):
+    """Each sample's Fourier-series table ``(F, E, estimate)``, in batches."""
+    return jax.lax.map(lambda vector: grid_inversion(
+        _unit_transfer(_inverted_unit(unit_factory(vector))), horizon, intervals, terms,
+        exit_age=exit_age), parameters, batch_size=batch)
+
+
+def _fourier_batch(terms: int) -> int:
+    """Samples a batch of series of `terms` terms may hold within :func:`memory_budget`
+    (about twenty complex arrays of the terms a sample)."""
+    return int(max(1, min(_BATCH, memory_budget() // (20 * 16 * terms))))
+
+
+def _check_nodes(intervals: int) -> np.ndarray:
+    return np.unique(np.round(np.linspace(1, intervals, CHECK_NODES)).astype(int))
+
+
+def _sample_tables(unit_factory, parameters, disturbance, scan, step: float, batch: int,
+                   unit: Unit):
+    """Each sample's node values on the grid of :func:`_sample_grid`: ``(step, F, E)`` with
+    ``(samples, N + 1)`` arrays, the horizon and the :class:`SampleTables` record. The
+    values come from the Fourier series where it is verified, else from the exact
+    inversion."""
     grid, intervals, horizon = _sample_grid(disturbance, scan, step)
     count = parameters.shape[0]
-    cumulative, density = _exact_sample_curves(
+    needs = _needs(disturbance)
+    nodes = grid * np.arange(intervals + 1)
+    terms = _fourier_terms(unit, grid * intervals, intervals, needs)
+    if terms is None:
+        cumulative, density = _exact_sample_curves(
+            unit_factory, _pad_rows(parameters, batch), jnp.asarray(nodes), needs, batch)
+        return ((grid, cumulative[:count], None if density is None else density[:count]),
+                horizon, SampleTables(intervals, None, count, float("nan")))
+    fbatch = min(_fourier_batch(terms), count)
+    cumulative, density, estimate = _fourier_sample_curves(
+        unit_factory, _pad_rows(parameters, fbatch), grid * intervals, intervals, terms, needs,
+        fbatch)
+    cumulative, estimate = np.array(cumulative[:count]), np.asarray(estimate[:count])
+    density = None if density is None else np.array(density[:count])
+    checked = _check_nodes(intervals)
+    exact_f, exact_e = _exact_sample_curves(
         unit_factory, _pad_rows(parameters, batch),
-        jnp.asarray(grid * np.arange(intervals + 1)), _needs(disturbance), batch)
-    return (grid, cumulative[:count], None if density is None else density[:count]), horizon
+        jnp.asarray(_padded(nodes[checked], CHECK_NODES)), needs, batch)
+    exact_f = np.asarray(exact_f[:count, : checked.size])
+    difference = np.abs(cumulative[:, checked] - exact_f).max(axis=1)
+    finite = np.isfinite(exact_f).all(axis=1)
+    if density is not None:
+        exact_e = np.asarray(exact_e[:count, : checked.size])
+        difference = np.maximum(difference, grid * intervals * np.abs(
+            density[:, checked] - exact_e).max(axis=1))
+        finite &= np.isfinite(exact_e).all(axis=1)
+    error = np.maximum(estimate, difference)
+    # Samples whose series missed the tolerance are inverted exactly; those whose exact
+    # inversion is not finite fail later whatever their table holds.
+    redo = np.flatnonzero(finite & ~(error <= FOURIER_TOLERANCE))
+    if redo.size:
+        exact_cumulative, exact_density = _exact_sample_curves(
+            unit_factory, _pad_rows(parameters[redo], batch), jnp.asarray(nodes), needs, batch)
+        cumulative[redo] = np.asarray(exact_cumulative[: redo.size])
+        if density is not None:
+            density[redo] = np.asarray(exact_density[: redo.size])
+    used = finite.copy()
+    used[redo] = False
+    cumulative[~finite] = np.nan
+    worst = float(error[used].max()) if used.any() else float("nan")
+    return ((grid, jnp.asarray(cumulative), None if density is None else jnp.asarray(density)),
+            horizon, SampleTables(intervals, terms, int(redo.size), worst))
 
 
-def _sample_settle_exact(unit_factory, parameters, disturbance, scan, step: float, ends,
-                         batch: int) -> np.ndarray:
+def _sample_settle_exact(unit_factory, parameters, disturbance, ends, batch: int) -> np.ndarray:
     """``1 - F(end - last event)`` of each sample at the candidate `ends` ``(samples, ends)``,
-    by the samples' table program (the lags padded to its node count)."""
+    by the exact inversion (the program of the tables' check nodes: the lags padded to
+    :data:`CHECK_NODES`)."""
     events = np.asarray(disturbance.event_times())
     count = parameters.shape[0]
     if events.size == 0:
         return np.zeros((count, ends.shape[0]))
-    _, intervals, _ = _sample_grid(disturbance, scan, step)
     lags = ends - events.max()
     cumulative, _ = _exact_sample_curves(
         unit_factory, _pad_rows(parameters, batch),
-        jnp.asarray(_padded(np.maximum(lags, 0.0), intervals + 1)), _needs(disturbance),
+        jnp.asarray(_padded(np.maximum(lags, 0.0), CHECK_NODES)), _needs(disturbance),
         batch)
     return np.asarray(_unsettled_from(cumulative[:count, : ends.shape[0]], jnp.asarray(lags)))
 
@@ -939,20 +1055,19 @@ def conservative_diversion_window(
     full = np.asarray(nominal.times)
     batch = min(_BATCH, parameters.shape[0])
     inverted = _inverted_unit(nominal_rtd)
-    table_intervals = table_step = None
+    table_intervals = table_step = table_record = None
     table_difference = float("nan")
     if inverted is not None:
         table_intervals, table_step, table_difference = _choose_table(
             inverted, nominal, disturbance, target, lower, upper)
     ends = _candidate_ends(full)
     if table_intervals is not None:
-        # Each sample is evaluated on a table of its exact values, on the scan to the latest
-        # end any of them needs (found first, by the same program).
-        settle = _sample_settle_exact(unit_factory, parameters, disturbance, scan, table_step,
-                                      ends, batch)
+        # Each sample is evaluated on a table of its values, on the scan to the latest end
+        # any of them needs (found first, exactly).
+        settle = _sample_settle_exact(unit_factory, parameters, disturbance, ends, batch)
         scan = _settled_scan(settle, full, scan, step, samples, lags)
-        tables, horizon = _sample_tables(unit_factory, parameters, disturbance, scan,
-                                         table_step, batch)
+        tables, horizon, table_record = _sample_tables(
+            unit_factory, parameters, disturbance, scan, table_step, batch, inverted)
         starts, stops, diverts, finite, unsettled = _evaluate_samples(
             unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
             horizon, tables)
@@ -1021,4 +1136,5 @@ def conservative_diversion_window(
         amount_unit,
         table_intervals,
         table_difference,
+        table_record,
     )
