@@ -1014,11 +1014,16 @@ def conservative_diversion_window(
     while some sample has not settled. Samples run in batches
     whose memory, measured from the compiled program before any work, stays within
     :func:`memory_budget`. A unit whose every time is a numerical inversion (the exchange
-    models, ``UnitModel.numerical``) is evaluated, sample by sample, on a table of its exact
-    F (and E) at the coarsest grid of :data:`TABLE_INTERVALS` whose nominal outlet agrees
+    models, ``UnitModel.numerical``) is evaluated, sample by sample, on a table of its F
+    (and E) at the coarsest grid of :data:`TABLE_INTERVALS` whose nominal outlet agrees
     with the nominal window's (itself on a table of :data:`NOMINAL_TABLE_INTERVALS`
-    intervals) within :data:`TABLE_TOLERANCE` of the limits' width (the result says which
-    grid and how close); without such a grid the samples use the unit itself.
+    intervals of exact values) within :data:`TABLE_TOLERANCE` of the limits' width (the
+    result says which grid and how close); without such a grid the samples use the unit
+    itself. Each sample's table comes from the damped Fourier series of
+    :func:`~axialmix.analytic.fourier.grid_inversion` (one FFT a sample), whose error, its
+    own estimate and the difference from the exact inversion at :data:`CHECK_NODES` nodes,
+    must be at most :data:`FOURIER_TOLERANCE`; samples that miss it are tabulated by the
+    exact inversion, and the result counts them (``tables``).
 
     **Returns:**
 
