@@ -43,6 +43,15 @@ def _series(values: jax.Array, damping: jax.Array, period, terms: int, stride: i
         2.0 * jnp.real(total[..., index]) - jnp.real(values[..., :1]))
 
 
+def _estimate(g, s, damping, period, terms, intervals, horizon, exit_age):
+    """The series of `terms` terms against that of half as many, at the grid's nodes."""
+    stride, half = terms // (2 * intervals), terms // 2
+    pairs = [(g / s, 1.0)] + ([(g, float(horizon))] if exit_age else [])
+    return jnp.max(jnp.stack([scale * jnp.max(jnp.abs(
+        _series(values, damping, period, terms, stride)
+        - _series(values, damping, period, half, stride // 2))) for values, scale in pairs]))
+
+
 def grid_inversion(
     transfer: Callable[[jax.Array], jax.Array],
     horizon: float,
@@ -76,15 +85,11 @@ def grid_inversion(
     damping = DAMPING / period
     s = damping + 2j * jnp.pi * jnp.arange(terms) / period
     g = transfer(s)
-    stride, half = terms // (2 * intervals), terms // 2
+    stride = terms // (2 * intervals)
     cumulative = _series(g / s, damping, period, terms, stride)
-    estimate = jnp.max(jnp.abs(cumulative - _series(g / s, damping, period, half, stride // 2)))
-    density = None
-    if exit_age:
-        density = _series(g, damping, period, terms, stride)
-        coarse = _series(g, damping, period, half, stride // 2)
-        estimate = jnp.maximum(estimate, float(horizon) * jnp.max(jnp.abs(density - coarse)))
-    return cumulative, density, estimate
+    density = _series(g, damping, period, terms, stride) if exit_age else None
+    return cumulative, density, _estimate(g, s, damping, period, terms, intervals, horizon,
+                                          exit_age)
 
 
 def truncation_estimates(
@@ -107,13 +112,6 @@ def truncation_estimates(
     estimates = []
     terms = 4 * intervals
     while terms <= max_terms:
-        stride, half = terms // (2 * intervals), terms // 2
-        estimate = jnp.max(jnp.abs(_series(g / s, damping, period, terms, stride)
-                                   - _series(g / s, damping, period, half, stride // 2)))
-        if exit_age:
-            estimate = jnp.maximum(estimate, float(horizon) * jnp.max(jnp.abs(
-                _series(g, damping, period, terms, stride)
-                - _series(g, damping, period, half, stride // 2))))
-        estimates.append(estimate)
+        estimates.append(_estimate(g, s, damping, period, terms, intervals, horizon, exit_age))
         terms *= 2
     return jnp.stack(estimates)
