@@ -149,3 +149,26 @@ def test_curve_file_names_are_safe_and_distinct():
     assert curve_file_stem("run 1/2") == "run_1_2"
     assert curve_file_stem("A-3.b_c") == "A-3.b_c"
     assert curve_file_stem("..") == "curve" and curve_file_stem("é") == "_"
+
+
+def test_a_study_with_plots_draws_each_curve_as_a_single_file_fit_is(tmp_path, capsys):
+    from matplotlib.image import imread
+
+    long = _long_table(tmp_path / "long.csv")
+    out = tmp_path / "study"
+    assert main(["fit", str(long), "--curve-column", "curve", "--model", "adm", "--plots",
+                 "--out", str(out)]) == 0
+    single = tmp_path / "single"
+    assert main(["fit", str(FILES[0]), "--model", "adm", "--out", str(single)]) == 0
+    capsys.readouterr()
+    images = sorted((out / "curves").glob("*.png"))
+    assert [f.stem for f in images] == [f.stem for f in FILES]
+    reference = imread(single / f"{FILES[0].stem}.png")
+    for image in images:
+        assert image.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert imread(image).shape == reference.shape
+    # The same folder continued without --plots would leave curves without PNGs: refused.
+    status = main(["fit", str(long), "--curve-column", "curve", "--model", "adm",
+                   "--out", str(out)])
+    err = capsys.readouterr().err
+    assert status == 2 and "--plots" in err and len(err.strip().splitlines()) == 1, err

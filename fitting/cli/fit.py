@@ -82,7 +82,8 @@ would be, in chunks of ``--chunk`` curves (default 64), and ``DIR/summary.csv`` 
 ``DIR/summary.json`` get one row per curve: its factors, each parameter with standard error and
 95 % interval (units in the column names), v and D_z with ``--length``, the error model,
 convergence and the lack-of-fit verdict, and ``DIR/curves/<curve>.json`` holds each curve's
-full record (what ``funnel --model`` and ``divert --model`` read; no plots). Finished
+full record (what ``funnel --model`` and ``divert --model`` read), with ``--plots`` beside
+its PNG ``DIR/curves/<curve>.png`` (drawn as a single file's is). Finished
 chunks are appended to ``DIR/summary.jsonl``; the same command run again after Ctrl-C or a
 kill fits only the curves not yet in it. ``--workers N`` fits on a local Dask cluster of N
 processes, ``--scheduler ADDRESS`` on a running one, with the same results. A study fits one
@@ -226,6 +227,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                        help="fit on a local Dask cluster of N processes")
     study.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="fit on the Dask scheduler at ADDRESS (tcp://host:8786)")
+    study.add_argument("--plots", action="store_true",
+                       help="also draw each curve's fit as DIR/curves/<curve>.png (single "
+                       "files and folders always get their PNGs)")
     parser.add_argument("--out", required=True, metavar="DIR", help="folder for the results")
     parser.set_defaults(func=run)
     return parser
@@ -703,7 +707,7 @@ def _run_study(args: argparse.Namespace, files: Sequence[Path], models, every_se
     lock = _Lock(out)
     lock.acquire()
     try:
-        run = StudyRun(plan, study, out, chunk)
+        run = StudyRun(plan, study, out, chunk, plots=args.plots)
     except ValueError as error:
         lock.release()
         raise InputError(str(error)) from None

@@ -57,12 +57,19 @@ from fitting.losses import ERROR_KINDS
 from fitting.measurement import FREEABLE, INLET_KINDS, Inlet, measured
 from fitting.models import MODELS, Model, network_model
 from fitting.parameters import Parameter
-from fitting.report import fit_record, summary_columns, summary_row, summary_rows
+from fitting.report import (
+    fit_record,
+    render_fit_png,
+    summary_columns,
+    summary_row,
+    summary_rows,
+    write_png,
+)
 from fitting.solve import MultiStart, enable_compilation_cache
 from fitting.study.input import Study, factor_value
 
-__all__ = ["DEFAULT_CHUNK", "JOURNAL_NAME", "StudyPlan", "StudyRun", "fit_chunk",
-           "map_chunks", "plan_model", "study_table"]
+__all__ = ["CURVE_FOLDER", "DEFAULT_CHUNK", "JOURNAL_NAME", "StudyPlan", "StudyRun", "fit_chunk",
+           "fit_chunk_drawn", "map_chunks", "plan_model", "study_table"]
 
 #: Curves per chunk (and per Dask task) unless told.
 DEFAULT_CHUNK = 64
@@ -169,22 +176,9 @@ def plan_model(plan: StudyPlan, inlet: Curve | None = None) -> Model:
 _CACHE_ENABLED = threading.Event()
 
 
-def fit_chunk(plan: StudyPlan, curves: Sequence[Curve],
-              inlets: Sequence[Curve | None] | None = None) -> list[dict[str, Any]]:
-    """Fit a chunk of curves with a plan and render each fit as its JSON record.
-
-    This is the task a Dask worker runs; the one-process run calls it too, so both give the
-    same numbers.
-
-    **Arguments:**
-
-    - `plan`: the :class:`StudyPlan`.
-    - `curves`: the curves (raw values, their files' units).
-    - `inlets`: per curve its own inlet signal or ``None`` (then the plan's inlet).
-
-    **Returns:** one :func:`fitting.report.fit_record` per curve, in order; for a curve that
-    cannot be fitted, ``{"refused": reason}`` (one line naming the curve).
-    """
+def _fit_results(plan: StudyPlan, curves: Sequence[Curve],
+                 inlets: Sequence[Curve | None] | None) -> tuple[list, dict[int, str]]:
+    """The fits of a chunk (``None`` for a refused curve) and the refused curves' reasons."""
     if not _CACHE_ENABLED.is_set():
         enable_compilation_cache()
         _CACHE_ENABLED.set()
@@ -211,9 +205,47 @@ def fit_chunk(plan: StudyPlan, curves: Sequence[Curve],
             results[i] = fit(plan_model(plan, inlets[i]), curves[i], settings, **options)
         except ValueError as error:  # this curve is listed with its reason, the rest fitted
             refused[i] = f"curve {curves[i].name!r}: {' '.join(str(error).split())}"
+            results[i] = None
+    return results, refused
+
+
+def fit_chunk(plan: StudyPlan, curves: Sequence[Curve],
+              inlets: Sequence[Curve | None] | None = None) -> list[dict[str, Any]]:
+    """Fit a chunk of curves with a plan and render each fit as its JSON record.
+
+    This is the task a Dask worker runs; the one-process run calls it too, so both give the
+    same numbers.
+
+    **Arguments:**
+
+    - `plan`: the :class:`StudyPlan`.
+    - `curves`: the curves (raw values, their files' units).
+    - `inlets`: per curve its own inlet signal or ``None`` (then the plan's inlet).
+
+    **Returns:** one :func:`fitting.report.fit_record` per curve, in order; for a curve that
+    cannot be fitted, ``{"refused": reason}`` (one line naming the curve).
+    """
+    results, refused = _fit_results(plan, curves, inlets)
     return [{"refused": refused[i]} if i in refused else
             fit_record(result, None, source=curve.source, length_m=plan.length_m)
             for i, (result, curve) in enumerate(zip(results, curves, strict=True))]
+
+
+def fit_chunk_drawn(plan: StudyPlan, curves: Sequence[Curve],
+                    inlets: Sequence[Curve | None] | None = None
+                    ) -> tuple[list[dict[str, Any]], list[bytes | None]]:
+    """:func:`fit_chunk` and each fit's PNG (:func:`fitting.report.render_fit_png`, the
+    figure a single file's fit draws; ``None`` for a refused curve): the task of a study run
+    with plots.
+
+    **Returns:** ``(records, images)``, both in the curves' order.
+    """
+    results, refused = _fit_results(plan, curves, inlets)
+    records = [{"refused": refused[i]} if i in refused else
+               fit_record(result, None, source=curve.source, length_m=plan.length_m)
+               for i, (result, curve) in enumerate(zip(results, curves, strict=True))]
+    images = [None if result is None else render_fit_png(result) for result in results]
+    return records, images
 
 
 def study_table(rows: Sequence[Mapping[str, Any]], factors: Sequence[str]
@@ -243,17 +275,21 @@ class StudyRun:
     - `study`: the :class:`~fitting.study.input.Study`.
     - `folder`: the output folder (created if missing).
     - `chunk`: curves per chunk (and per Dask task).
+    - `plots`: also draw each fitted curve's PNG (``curves/<curve>.png``, the figure of a
+      single file's fit), written before the curve's record is journaled, so every curve
+      the journal holds has its PNG.
 
-    Opening a folder whose journal describes another study or other settings is a one-line
+    Opening a folder whose journal describes another study or other settings (``plots``
+    included: a resumed run draws all of its curves or none) is a one-line
     ``ValueError``. :attr:`lock` is held while results are appended and summaries written
     (a caller handling Ctrl-C takes it before writing the summary itself).
     """
 
     def __init__(self, plan: StudyPlan, study: Study, folder: str | Path,
-                 chunk: int = DEFAULT_CHUNK):
+                 chunk: int = DEFAULT_CHUNK, *, plots: bool = False):
         if chunk < 1:
             raise ValueError(f"chunk must be at least 1 curve, got {chunk}")
-        self.plan, self.study, self.chunk = plan, study, int(chunk)
+        self.plan, self.study, self.chunk, self.plots = plan, study, int(chunk), bool(plots)
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.journal = self.folder / JOURNAL_NAME
@@ -262,8 +298,19 @@ class StudyRun:
                              "study's journal; remove it or give another --out")
         self.lock = threading.Lock()
         self.header = {"study": study.source, "digest": study.digest(), "n_curves": len(study),
-                       "factors": list(study.factors), "plan": plan.describe()}
+                       "factors": list(study.factors), "plan": plan.describe(),
+                       "plots": self.plots}
         self.index = {name: i for i, name in enumerate(study.ids)}
+        #: Each curve's file name stem in ``curves/``: :func:`curve_file_stem`, with the
+        #: study position appended to a stem an earlier curve took.
+        self.stems: dict[str, str] = {}
+        taken: set[str] = set()
+        for position, name in enumerate(study.ids):
+            stem = curve_file_stem(name)
+            if stem in taken:
+                stem = f"{stem}-{position + 1}"
+            taken.add(stem)
+            self.stems[name] = stem
         self._columns: tuple[list[str], list[str], list[str]] | None = None
         #: Finished curves: ``{id: summary-table row}``; their records stay in the journal,
         #: found by :attr:`_offsets` (so memory holds table rows only).
@@ -303,6 +350,11 @@ class StudyRun:
             what = "data" if header.get("digest") != self.header["digest"] else "settings"
             raise ValueError(f"{self.journal}: holds a study with other {what}; continue it "
                              "with the same input and options, or choose another --out folder")
+        if bool(header.get("plots", False)) != self.plots:
+            earlier = "with" if header.get("plots", False) else "without"
+            raise ValueError(f"{self.journal}: holds a study fitted {earlier} --plots; continue "
+                             f"it {earlier} --plots (so that every curve has its PNG or none "
+                             "has), or choose another --out folder")
         offset = len(lines[0]) + 1
         for line in lines[1:-1]:
             try:
@@ -401,19 +453,22 @@ class StudyRun:
 
     def _write_curve_records(self) -> None:
         """One JSON record per fitted curve in ``curves/`` (what ``funnel --model`` and
-        ``divert --model`` read, as they read a single file's fit), named after the curve
+        ``divert --model`` read, as they read a single file's fit), named by :attr:`stems`
         (characters other than letters, digits, ``.``, ``-`` and ``_`` become ``_``; a name
         taken twice that way gets its study position appended). Each is written atomically;
         a record already there from an earlier run of the same study is rewritten."""
         folder = self.folder / CURVE_FOLDER
         folder.mkdir(exist_ok=True)
-        taken: set[str] = set()
         for record in self.records():
-            name = curve_file_stem(record["curve"])
-            if name in taken:
-                name = f"{name}-{self.index[record['curve']] + 1}"
-            taken.add(name)
-            write_json(folder / f"{name}.json", record)
+            write_json(folder / f"{self.stems[record['curve']]}.json", record)
+
+    def _write_images(self, indices: Sequence[int], images: Sequence[bytes | None]) -> None:
+        """Each drawn curve's PNG, atomically, into ``curves/<stem>.png``."""
+        folder = self.folder / CURVE_FOLDER
+        folder.mkdir(exist_ok=True)
+        for i, image in zip(indices, images, strict=True):
+            if image is not None:
+                write_png(folder / f"{self.stems[self.study.ids[i]]}.png", image)
 
     def _chunks(self) -> Iterator[list[int]]:
         pending = self.pending
@@ -446,8 +501,13 @@ class StudyRun:
                            enabled=progress)
         count = 0
 
-        def finished(indices, records) -> None:
+        def finished(indices, payload) -> None:
             nonlocal count
+            if self.plots:  # the PNGs first: a journaled curve always has its PNG
+                records, images = payload
+                self._write_images(indices, images)
+            else:
+                records = payload
             self._append(indices, records)
             count += len(indices)
             bar.update(len(indices))
@@ -456,7 +516,8 @@ class StudyRun:
                       "fitted", file=sys.stderr, flush=True)
 
         try:
-            map_chunks(fit_chunk, ((indices, self._task(indices)) for indices in self._chunks()),
+            task = fit_chunk_drawn if self.plots else fit_chunk
+            map_chunks(task, ((indices, self._task(indices)) for indices in self._chunks()),
                        workers, scheduler, stop, finished)
         finally:
             bar.close()
