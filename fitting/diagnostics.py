@@ -44,7 +44,9 @@ __all__ = [
     "identifiability",
     "lack_of_fit",
     "other_optima",
+    "profile_intervals",
     "profile_likelihood",
+    "with_profile_intervals",
 ]
 
 # --- identifiability ---------------------------------------------------------------------------
@@ -281,6 +283,152 @@ def profile_likelihood(
     threshold = minimum * (1 + quantile**2 / dof) if dof > 0 else math.nan
     return Profile(name, values, sse, converged, threshold,
                    crossings(values, sse, threshold, best), regions(values, sse, threshold))
+
+
+#: Default reach of :func:`profile_intervals`: each parameter is held from its fitted value
+#: divided by this factor to the value times it (positive parameters).
+PROFILE_FACTOR = 1e3
+#: Default number of held values of :func:`profile_intervals` on each side of the fit.
+PROFILE_POINTS_PER_SIDE = 12
+
+
+def profile_intervals(
+    result: FitResult,
+    names: Sequence[str] | None = None,
+    *,
+    factor: float = PROFILE_FACTOR,
+    points_per_side: int = PROFILE_POINTS_PER_SIDE,
+    progress=None,
+) -> dict[str, Profile]:
+    """95 % profile-likelihood intervals: each parameter held on a wide grid, the others
+    re-fitted from the optimum (every held value its own fit of the batched engine).
+
+    Where one curve does not determine a parameter, the linearised interval describes only
+    the neighbourhood of the optimum found (the four-compartment rates of one RTD: a second
+    optimum, a valley in which the truth can lie far outside it). The profile follows the
+    loss along the parameter instead; its 95 % set is where it stays below the F-test level
+    of :func:`profile_likelihood` (the same threshold, at the fit's weights), which for a
+    linear model is the linearised interval.
+
+    **Arguments:**
+
+    - `result`: a least-squares :class:`~fitting.result.FitResult`.
+    - `names`: the free parameters to profile (default: every free one).
+    - `factor`: a positive parameter is held at ``value · factor^(k/n)`` for
+      ``k = -n..n`` (``n`` = `points_per_side`), kept inside its bounds; any other at
+      ``value + k/n · 4·max(stderr, |value|)``.
+    - `progress`: called with each parameter's name before it is profiled, or ``None``.
+
+    **Returns:** ``{name: Profile}``; a side whose profile stays below the threshold to the
+    end of the grid is open (``None`` in the profile's ``ci95`` and regions).
+    """
+    from fitting.fit import fit_many
+
+    if result.loss_name != "sse":
+        raise ValueError("profile intervals need a least-squares fit")
+    names = list(result.free_names if names is None else names)
+    unknown = [name for name in names if name not in result.free_names]
+    if unknown:
+        raise ValueError(f"{unknown[0]!r} is not a free parameter of this fit "
+                         f"(free: {', '.join(result.free_names)})")
+    if not (factor > 1 and points_per_side >= 1):
+        raise ValueError("the profile needs a factor above 1 and at least one point a side")
+    steps = np.arange(-points_per_side, points_per_side + 1) / points_per_side
+    base = result.restart_parameters()
+    profiles: dict[str, Profile] = {}
+    for name in names:
+        if progress is not None:
+            progress(name)
+        setting, best = result.init_params[name], result.values[name]
+        low = setting.min if setting.min is not None else -np.inf
+        high = setting.max if setting.max is not None else np.inf
+        # The wide grid, and values at the linearised interval's scale, so that a parameter
+        # the curve does determine gets its ends resolved too (the wide grid's steps are a
+        # factor factor^(1/n) apart).
+        linear = result.ci95.get(name)
+        near = np.array([0.5, 1.0, 1.5, 2.0])
+        if low >= 0 and best > 0:
+            values = best * factor ** steps
+            if linear is not None and all(x is not None and np.isfinite(x) and x > 0
+                                          for x in linear):
+                reach = max(math.log(linear[1] / best), math.log(best / linear[0]))
+                if 0 < reach < math.log(factor) / points_per_side:
+                    values = np.concatenate([values, best * np.exp(np.concatenate(
+                        [-near, near]) * reach)])
+        else:
+            error = result.stderr.get(name)
+            width = max(error if error is not None and np.isfinite(error) else 0.0, abs(best),
+                        1e-12)
+            values = best + 4.0 * width * steps
+            if linear is not None and all(x is not None and np.isfinite(x) for x in linear):
+                reach = max(linear[1] - best, best - linear[0])
+                if 0 < reach < 4.0 * width / points_per_side:
+                    values = np.concatenate([values, best + np.concatenate([-near, near]) *
+                                             reach])
+        values = np.unique(values[(values >= low) & (values <= high)])
+        settings = []
+        for value in values:
+            held = base.copy()
+            held[name] = held[name].replace(value=float(value), vary=False)
+            settings.append(held)
+        if len(result.free_names) == 1:  # nothing else to refit: the loss itself
+            time, observed = result.curve.time, result.curve.value
+            sse = np.array([np.sum(result.weights * (result.model.evaluate(
+                time, result.values | {name: float(v)}) - observed) ** 2) for v in values])
+            converged = np.ones(values.size, dtype=bool)
+        else:
+            fits = fit_many(result.model, [result.curve] * len(values), settings,
+                            weights=[result.weights] * len(values),
+                            multistart=MultiStart(n_starts=1))
+            sse = np.array([f.sse for f in fits], dtype=float)
+            converged = np.array([bool(f.converged) for f in fits])
+        dof = result.dof
+        minimum = min(result.sse, float(np.nanmin(sse)))
+        threshold = minimum * (1 + t_quantile(dof) ** 2 / dof) if dof > 0 else math.nan
+        # Crossings interpolated on the root of the loss above its minimum, which is linear
+        # in a parameter the model is linear in (the profile's ends then equal the
+        # linearised interval's exactly) and close to linear near any optimum.
+        root = np.sqrt(np.maximum(np.where(np.isfinite(sse), sse, np.inf) - minimum, 0.0))
+        level = math.sqrt(threshold - minimum)
+        profiles[name] = Profile(name, values, sse, converged, threshold,
+                                 crossings(values, root, level, best),
+                                 regions(values, root, level))
+    return profiles
+
+
+def with_profile_intervals(result: FitResult, profiles: dict[str, Profile]) -> FitResult:
+    """`result` with the 95 % intervals of the profiled parameters taken from their profiles.
+
+    Each interval is the smallest one holding every stretch where the profile lies below its
+    threshold (separate stretches are joined: a conservative hull of the 95 % set); an open
+    side becomes the parameter's bound, or ``inf``/``-inf``, as a parameter the curve does not
+    bound there. The names are recorded in :attr:`~fitting.result.FitResult.profiled`.
+
+    **Arguments:** `result`; `profiles` from :func:`profile_intervals`.
+
+    **Returns:** a new :class:`~fitting.result.FitResult`.
+    """
+    import dataclasses
+
+    intervals = dict(result.ci95)
+    # Starts of the fit that ended at another optimum within the same level are points of
+    # the 95 % set that a profile run from the best optimum may not reach.
+    optima = other_optima(result)
+    for name, profile in profiles.items():
+        setting = result.init_params[name]
+        lows = [a for a, _ in profile.regions]
+        highs = [b for _, b in profile.regions]
+        if not profile.regions:  # the grid never fell below the threshold: only the optimum
+            intervals[name] = (result.values[name], result.values[name])
+            continue
+        low = (setting.min if setting.min is not None else -math.inf) if None in lows \
+            else min(lows)
+        high = (setting.max if setting.max is not None else math.inf) if None in highs \
+            else max(highs)
+        known = [result.values[name], *(o.values[name] for o in optima if name in o.values)]
+        intervals[name] = (min(low, *known), max(high, *known))
+    return dataclasses.replace(result, ci95=intervals,
+                               profiled=tuple(dict.fromkeys((*result.profiled, *profiles))))
 
 
 def crossings(values: np.ndarray, sse: np.ndarray, threshold: float,

@@ -167,6 +167,13 @@ def identifiability_statements(result: FitResult) -> list[str]:
         if diagnosis.poorly_determined:
             statements.append(f"Combinations (curvature eigen-analysis, log scale): "
                               f"{diagnosis.summary}.")
+    if result.profiled:
+        names = ", ".join(result.profiled)
+        statements.append(
+            f"95 % intervals of {names} from the profile likelihood: each held on a grid "
+            "over a factor 1000 either way (or ±4 of its scale), the others refitted; the "
+            "interval holds every value whose refitted loss stays below the F-test level "
+            "(0 or inf: the curve does not bound it on that side within the grid).")
     statements.extend(result.model.facts(result.values, result.init_params))
     for optimum in other_optima(result)[:1]:
         where = ", ".join(f"{n} = {v:.4g}" for n, v in optimum.values.items())
@@ -434,7 +441,8 @@ def fit_record(
     base = result.to_dict()
     units = parameter_units(result)
     parameters = {
-        name: {**{key: entry[key] for key in ("value", "stderr", "ci95", "vary", "expr")},
+        name: {**{key: entry[key] for key in ("value", "stderr", "ci95", "interval", "vary",
+                                              "expr")},
                "unit": units[name]}
         for name, entry in base["parameters"].items()
     }

@@ -178,6 +178,9 @@ class FitResult:
     settings: FitSettings | None = field(default=None, repr=False)
     error_model: ErrorEstimate | None = field(default=None, repr=False)
     start_values: np.ndarray | None = field(default=None, repr=False)
+    #: Free parameters whose `ci95` is a profile-likelihood interval
+    #: (:func:`fitting.diagnostics.with_profile_intervals`); the others' are linearised.
+    profiled: tuple[str, ...] = field(default=(), repr=False)
 
     def __post_init__(self) -> None:
         for name in ("weights", "predicted", "residuals", "jacobian", "start_losses",
@@ -379,6 +382,8 @@ class FitResult:
                 "value": number(value),
                 "stderr": number(self.stderr[name]),
                 "ci95": [number(interval[0]), number(interval[1])] if interval else None,
+                "interval": ("profile" if name in self.profiled else "linearised")
+                if interval else None,
                 "vary": bool(setting.vary and setting.expr is None),
                 "expr": setting.expr,
                 "min": setting.min,

@@ -172,3 +172,36 @@ def test_a_study_with_plots_draws_each_curve_as_a_single_file_fit_is(tmp_path, c
                    "--out", str(out)])
     err = capsys.readouterr().err
     assert status == 2 and "--plots" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_profile_intervals_through_the_command_line(tmp_path, capsys):
+    import json
+
+    curve = EXAMPLES / "horizontal.csv"
+    common = ["fit", str(curve), "--model", "adm", "--fix", "tau=7.19", "--fix", "Pe=0.64",
+              "--errors", "absolute"]
+    assert main([*common, "--out", str(tmp_path / "plain")]) == 0
+    assert main([*common, "--profile", "amplitude", "--out", str(tmp_path / "prof")]) == 0
+    out = capsys.readouterr().out
+    assert "from the profile likelihood" in out
+    plain = json.loads((tmp_path / "plain" / "horizontal.json").read_text())["parameters"]
+    prof = json.loads((tmp_path / "prof" / "horizontal.json").read_text())["parameters"]
+    assert plain["amplitude"]["interval"] == "linearised"
+    assert prof["amplitude"]["interval"] == "profile"
+    # The model is linear in the amplitude alone: its profile interval is the exact one,
+    # value ± t s.e. (the linearised interval of a positive parameter is drawn on its log
+    # scale, so it is not).
+    from scipy import stats
+
+    record = json.loads((tmp_path / "prof" / "horizontal.json").read_text())
+    value, error = plain["amplitude"]["value"], plain["amplitude"]["stderr"]
+    half = stats.t.ppf(0.975, record["n_points"] - 1) * error
+    p_low, p_high = prof["amplitude"]["ci95"]
+    assert p_low == pytest.approx(value - half, abs=1e-4 * half)
+    assert p_high == pytest.approx(value + half, abs=1e-4 * half)
+    for bad, culprit in ((["--profile", "nosuch"], "'nosuch'"), (["--profile", "tau"], "fixed"),
+                         (["--profile", "--curve-column", "run"], "--profile")):
+        status = main([*common, *bad, "--out", str(tmp_path / "bad")])
+        err = capsys.readouterr().err
+        assert status == 2 and culprit in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "bad").exists()

@@ -12,8 +12,10 @@ from axialmix.network import four_compartment_exit_age
 from fitting.diagnostics import (
     equivalent_dispersion,
     identifiability,
+    profile_intervals,
     profile_likelihood,
     regions,
+    with_profile_intervals,
 )
 from fitting.fit import fit, fit_many
 from fitting.models import custom_model
@@ -115,6 +117,48 @@ def test_profile_of_a_linear_model_is_the_exact_parabola_and_matches_the_wald_in
     half_width = (high - low) / 2
     assert profile.ci95[0] == pytest.approx(low, abs=1e-3 * half_width)
     assert profile.ci95[1] == pytest.approx(high, abs=1e-3 * half_width)
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_profile_intervals_of_a_linear_model_equal_the_exact_intervals(linear_fits, weighted):
+    observed, weights, results = linear_fits
+    result = results[1] if weighted else results[0]
+    w = weights if weighted else np.ones(TIME.size)
+    design = _basis(TIME)
+    normal = design.T @ (w[:, None] * design)
+    estimate = np.linalg.solve(normal, design.T @ (w * observed))
+    dof = TIME.size - 3
+    variance = np.sum(w * (design @ estimate - observed) ** 2) / dof
+    half = stats.t.ppf(0.975, dof) * np.sqrt(np.diag(variance * np.linalg.inv(normal)))
+    profiled = with_profile_intervals(result, profile_intervals(result))
+    assert profiled.profiled == ("a", "b", "c")
+    for i, name in enumerate("abc"):
+        # The held values' refits are least-squares solutions (to the solver's 1e-6 step
+        # tolerance), so the ends agree with the closed form to about 1e-5 of the half-width.
+        low, high = profiled.ci95[name]
+        assert low == pytest.approx(estimate[i] - half[i], abs=1e-4 * half[i])
+        assert high == pytest.approx(estimate[i] + half[i], abs=1e-4 * half[i])
+    record = profiled.to_dict()["parameters"]
+    assert {record[n]["interval"] for n in "abc"} == {"profile"}
+    assert result.to_dict()["parameters"]["a"]["interval"] == "linearised"
+
+
+def test_profile_intervals_refit_as_the_vmapped_profile_does():
+    # A nonlinear model: the engine's refits at each held value (profile_intervals) and the
+    # vmapped solver's (profile_likelihood) reach the same minima.
+    rng = np.random.default_rng(3)
+    t = np.linspace(0.2, 30.0, 60)
+    clean = 7.0 / (1.0 + 0.4 * t) * np.exp(-t / 6.0)
+    model = custom_model("decay", lambda t, p: p["A"] / (1.0 + p["k"] * t) * jnp.exp(-t / p["T"]),
+                         {"A": Parameter(5.0, min=0.0), "k": Parameter(0.2, min=0.0),
+                          "T": Parameter(4.0, min=0.0)})
+    result = fit(model, (t, clean + 0.05 * rng.normal(size=t.size)))
+    profiles = profile_intervals(result, ["k"], factor=4.0, points_per_side=4)
+    grid = profiles["k"].values
+    reference = profile_likelihood(result, "k", grid)
+    np.testing.assert_allclose(profiles["k"].sse, reference.sse, rtol=1e-6)
+    low, high = with_profile_intervals(result, profiles).ci95["k"]
+    assert low < result.values["k"] < high
 
 
 def test_effective_degrees_of_freedom_are_n_minus_p_for_inverse_variance_weights():

@@ -195,6 +195,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--free", action="append", default=[], metavar="NAMES",
                         help="also fit measurement parameters fixed at 0 by default: "
                         "dead_time (t_d), baseline (b); comma-separated or repeated")
+    parser.add_argument("--profile", nargs="?", const="all", default=None, metavar="NAMES",
+                        help="95 %% intervals from the profile likelihood: each named free "
+                        "parameter (comma-separated; all free ones without NAMES) held on a "
+                        "grid over a factor 1000 either way, the others refitted; for "
+                        "parameters one curve leaves poorly determined (minutes, not seconds)")
     parser.add_argument("--decimal", choices=("auto", ".", ","), default="auto",
                         help="decimal separator of the files (default: detected)")
     parser.add_argument("--time-column", default=None, metavar="NAME|INDEX",
@@ -860,6 +865,12 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--grid compares a fit with the source's grid search; use it with "
                              "one --model")
         every_settings = _settings_for_each(models, args.fix, args.tie)
+        if args.profile is not None:
+            if _is_study(args) or len(models) > 1 or args.loss != "sse":
+                raise InputError("--profile runs on least-squares fits of one model to single "
+                                 "files or folders (not on a study, a model comparison or "
+                                 "--loss mae)")
+            _profile_names(args.profile, models[0], every_settings[0])
         if _is_study(args):
             return _run_study(args, files, models, every_settings, free, out)
         curves = _read_curves(files, args)
@@ -986,6 +997,10 @@ class _Run(_Supervised):
                     return BAD_INPUT
                 if self.stop.is_set():
                     return INTERRUPTED
+                if args.profile is not None:
+                    result = _profiled(result, args.profile, self.stop)
+                    if self.stop.is_set():
+                        return INTERRUPTED
                 grid = None
                 if args.grid:
                     grids, held, tied = _grid_for(self.model, result)
@@ -1086,6 +1101,50 @@ class _Run(_Supervised):
                                                "complete": not interrupted, "fits": records})
         header, rows = summary_rows(records)
         write_csv(self.out / "summary.csv", header, rows)
+
+
+def _profile_names(text: str, model, settings: dict) -> tuple[str, ...] | None:
+    """The parameters ``--profile`` names (``None``: every free one), checked up front."""
+    if text.strip() == "all":
+        return None
+    from fitting.parameters import canonical_name
+
+    names = tuple(dict.fromkeys(canonical_name(n.strip()) for n in text.split(",")
+                                if n.strip()))
+    known = model.parameter_names
+    for name in names:
+        if name not in known:
+            raise InputError(f"--profile: {name!r} is not a parameter of {model.name} "
+                             f"({', '.join(known)})")
+        setting = settings.get(name)
+        if setting is not None and (not setting.vary or setting.expr is not None):
+            raise InputError(f"--profile: {name} is fixed or tied; profile a free parameter")
+    if not names:
+        raise InputError("--profile: name at least one parameter (or none, for all)")
+    return names
+
+
+def _profiled(result, text: str, stop: threading.Event):
+    """The fit with profile-likelihood intervals for the parameters ``--profile`` names."""
+    from fitting.diagnostics import profile_intervals, with_profile_intervals
+    from fitting.parameters import canonical_name
+
+    names = None if text.strip() == "all" else [canonical_name(n.strip())
+                                                 for n in text.split(",") if n.strip()]
+    names = [n for n in (result.free_names if names is None else names)
+             if n in result.free_names]
+
+    def said(name: str) -> None:
+        if stop.is_set():
+            raise KeyboardInterrupt
+        print(f"axialmix fit: profiling {name} ({names.index(name) + 1} of {len(names)})",
+              file=sys.stderr, flush=True)
+
+    try:
+        return with_profile_intervals(result, profile_intervals(result, names, progress=said))
+    except KeyboardInterrupt:
+        stop.set()
+        return result
 
 
 def _fit_one(model, curve, settings: dict, loss: str, starts: int | None,
