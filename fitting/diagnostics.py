@@ -11,6 +11,7 @@ verdicts, and says when the data cannot tell them apart.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Sequence
@@ -19,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from axialmix.network import four_compartment_chain_transport
-from fitting.fit import prepare
+from fitting.fit import fit_many, prepare
 from fitting.residuals import LACK_OF_FIT_LEVEL, LackOfFit, lack_of_fit_test
 from fitting.result import FitResult
 from fitting.solve import (
@@ -322,8 +323,6 @@ def profile_intervals(
     **Returns:** ``{name: Profile}``; a side whose profile stays below the threshold to the
     end of the grid is open (``None`` in the profile's ``ci95`` and regions).
     """
-    from fitting.fit import fit_many
-
     if result.loss_name != "sse":
         raise ValueError("profile intervals need a least-squares fit")
     names = list(result.free_names if names is None else names)
@@ -408,8 +407,6 @@ def with_profile_intervals(result: FitResult, profiles: dict[str, Profile]) -> F
 
     **Returns:** a new :class:`~fitting.result.FitResult`.
     """
-    import dataclasses
-
     intervals = dict(result.ci95)
     # Starts of the fit that ended at another optimum within the same level are points of
     # the 95 % set that a profile run from the best optimum may not reach.
