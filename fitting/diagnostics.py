@@ -343,39 +343,38 @@ def profile_intervals(
         high = setting.max if setting.max is not None else np.inf
         # The wide grid, and values at the linearised interval's scale, so that a parameter
         # the curve does determine gets its ends resolved too (the wide grid's steps are a
-        # factor factor^(1/n) apart).
-        linear = result.ci95.get(name)
-        near = np.array([0.5, 1.0, 1.5, 2.0])
-        if low >= 0 and best > 0:
-            values = best * factor ** steps
-            if linear is not None and all(x is not None and np.isfinite(x) and x > 0
-                                          for x in linear):
-                reach = max(math.log(linear[1] / best), math.log(best / linear[0]))
-                if 0 < reach < math.log(factor) / points_per_side:
-                    values = np.concatenate([values, best * np.exp(np.concatenate(
-                        [-near, near]) * reach)])
+        # factor factor^(1/n) apart). Both are laid out on the log scale for a positive
+        # parameter, on its own scale otherwise.
+        positive = low >= 0 and best > 0
+        scale, unscale = (np.log, np.exp) if positive else (np.asarray, np.asarray)
+        if positive:
+            reach_wide = math.log(factor)
         else:
             error = result.stderr.get(name)
-            width = max(error if error is not None and np.isfinite(error) else 0.0, abs(best),
-                        1e-12)
-            values = best + 4.0 * width * steps
-            if linear is not None and all(x is not None and np.isfinite(x) for x in linear):
-                reach = max(linear[1] - best, best - linear[0])
-                if 0 < reach < 4.0 * width / points_per_side:
-                    values = np.concatenate([values, best + np.concatenate([-near, near]) *
-                                             reach])
+            reach_wide = 4.0 * max(error if error is not None and np.isfinite(error) else 0.0,
+                                   abs(best), 1e-12)
+        centre = float(scale(best))
+        grid = centre + reach_wide * steps
+        linear = result.ci95.get(name)
+        if linear is not None and all(x is not None and np.isfinite(x) and (x > 0 or not positive)
+                                      for x in linear):
+            reach = max(float(scale(linear[1])) - centre, centre - float(scale(linear[0])))
+            if 0 < reach < reach_wide / points_per_side:
+                near = np.array([0.5, 1.0, 1.5, 2.0])
+                grid = np.concatenate([grid, centre + np.concatenate([-near, near]) * reach])
+        values = unscale(grid)
         values = np.unique(values[(values >= low) & (values <= high)])
-        settings = []
-        for value in values:
-            held = base.copy()
-            held[name] = held[name].replace(value=float(value), vary=False)
-            settings.append(held)
         if len(result.free_names) == 1:  # nothing else to refit: the loss itself
             time, observed = result.curve.time, result.curve.value
             sse = np.array([np.sum(result.weights * (result.model.evaluate(
                 time, result.values | {name: float(v)}) - observed) ** 2) for v in values])
             converged = np.ones(values.size, dtype=bool)
         else:
+            settings = []
+            for value in values:
+                held = base.copy()
+                held[name] = held[name].replace(value=float(value), vary=False)
+                settings.append(held)
             fits = fit_many(result.model, [result.curve] * len(values), settings,
                             weights=[result.weights] * len(values),
                             multistart=MultiStart(n_starts=1))

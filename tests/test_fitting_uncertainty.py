@@ -56,20 +56,24 @@ def linear_fits():
     return observed, weights, results
 
 
+def _exact_least_squares(observed, w):
+    """Weighted least squares in closed form: the estimate (X' W X)^-1 X' W y, its covariance
+    s² (X' W X)^-1 with s² = RSS / (n - p), and n - p."""
+    design = _basis(TIME)
+    normal = design.T @ (w[:, None] * design)
+    estimate = np.linalg.solve(normal, design.T @ (w * observed))
+    dof = TIME.size - 3
+    variance = np.sum(w * (design @ estimate - observed) ** 2) / dof
+    return estimate, variance * np.linalg.inv(normal), dof
+
+
 @pytest.mark.parametrize("weighted", [False, True])
 def test_linear_model_standard_errors_equal_the_exact_least_squares_formula(linear_fits,
                                                                              weighted):
     observed, weights, results = linear_fits
     result = results[1] if weighted else results[0]
-    w = weights if weighted else np.ones(TIME.size)
-    design = _basis(TIME)
-    # Weighted least squares in closed form: (X' W X)^-1 X' W y, s² = RSS / (n - p).
-    normal = design.T @ (w[:, None] * design)
-    estimate = np.linalg.solve(normal, design.T @ (w * observed))
-    residual = design @ estimate - observed
-    dof = TIME.size - 3
-    variance = np.sum(w * residual**2) / dof
-    covariance = variance * np.linalg.inv(normal)
+    estimate, covariance, dof = _exact_least_squares(
+        observed, weights if weighted else np.ones(TIME.size))
     errors = np.sqrt(np.diag(covariance))
     quantile = stats.t.ppf(0.975, dof)
     assert result.converged
@@ -123,13 +127,9 @@ def test_profile_of_a_linear_model_is_the_exact_parabola_and_matches_the_wald_in
 def test_profile_intervals_of_a_linear_model_equal_the_exact_intervals(linear_fits, weighted):
     observed, weights, results = linear_fits
     result = results[1] if weighted else results[0]
-    w = weights if weighted else np.ones(TIME.size)
-    design = _basis(TIME)
-    normal = design.T @ (w[:, None] * design)
-    estimate = np.linalg.solve(normal, design.T @ (w * observed))
-    dof = TIME.size - 3
-    variance = np.sum(w * (design @ estimate - observed) ** 2) / dof
-    half = stats.t.ppf(0.975, dof) * np.sqrt(np.diag(variance * np.linalg.inv(normal)))
+    estimate, covariance, dof = _exact_least_squares(
+        observed, weights if weighted else np.ones(TIME.size))
+    half = stats.t.ppf(0.975, dof) * np.sqrt(np.diag(covariance))
     profiled = with_profile_intervals(result, profile_intervals(result))
     assert profiled.profiled == ("a", "b", "c")
     for i, name in enumerate("abc"):
