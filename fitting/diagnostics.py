@@ -21,6 +21,7 @@ import numpy as np
 
 from axialmix.network import four_compartment_chain_transport
 from fitting.fit import fit_many, prepare
+from fitting.optima import OtherOptimum, other_optima
 from fitting.residuals import LACK_OF_FIT_LEVEL, LackOfFit, lack_of_fit_test
 from fitting.result import FitResult
 from fitting.solve import (
@@ -355,7 +356,7 @@ def profile_intervals(
                                    abs(best), 1e-12)
         centre = float(scale(best))
         grid = centre + reach_wide * steps
-        linear = result.ci95.get(name)
+        linear = result.linearised_intervals.get(name)
         if linear is not None and all(x is not None and np.isfinite(x) and (x > 0 or not positive)
                                       for x in linear):
             reach = max(float(scale(linear[1])) - centre, centre - float(scale(linear[0])))
@@ -424,6 +425,7 @@ def with_profile_intervals(result: FitResult, profiles: dict[str, Profile]) -> F
         known = [result.values[name], *(o.values[name] for o in optima if name in o.values)]
         intervals[name] = (min(low, *known), max(high, *known))
     return dataclasses.replace(result, ci95=intervals,
+                               linearised_ci95=dict(result.linearised_intervals),
                                profiled=tuple(dict.fromkeys((*result.profiled, *profiles))))
 
 
@@ -768,76 +770,3 @@ def equivalent_dispersion(result: FitResult, length: float = 1.0) -> dict:
                     "axial_dispersion": record["dispersion_m2_per_s"]},
         "chain": {"velocity": velocity, "axial_dispersion": dispersion, "peclet": peclet},
     }
-
-
-
-# --- other optima ------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class OtherOptimum:
-    """A start of a multi-start fit that ended elsewhere with a loss as low as the best's.
-
-    **Fields:** `start` (0-based), `values` (its free parameters), `loss` (its first-fit
-    loss, in the loss's unit), `outside` (the free parameters whose value there lies outside
-    the fit's 95 % interval).
-    """
-
-    start: int
-    values: dict[str, float]
-    loss: float
-    outside: tuple[str, ...]
-
-
-def other_optima(result: FitResult) -> list[OtherOptimum]:
-    """The starts that ended at another optimum fitting the curve as well as the best one.
-
-    A start counts when its first-fit loss lies within the 95 % threshold of the best one's,
-    ``loss_min (1 + t² / (n - p))`` (the level of :func:`profile_likelihood`), and at least
-    one free parameter there lies outside the fit's 95 % interval: the curve does not choose
-    between the two, and the interval, which describes the neighbourhood of one optimum, does
-    not cover the other. Only fits whose starts' ends are known (the multi-start solver's
-    path: fits with random starts) can be checked; others give ``[]``.
-
-    **Arguments:** `result`: a :class:`~fitting.result.FitResult`.
-
-    **Returns:** the other optima, the lowest loss first (at most one per distinct end).
-    """
-    ends, losses = result.start_values, np.asarray(result.start_losses, dtype=float)
-    if ends is None or ends.ndim != 2 or ends.shape[0] < 2 or losses.shape[0] != ends.shape[0]:
-        return []
-    dof = result.n_points - len(result.free_names)
-    finite = np.isfinite(losses)
-    if dof <= 0 or not finite.any():
-        return []
-    best = float(np.min(losses[finite]))
-    quantile = t_quantile(dof)
-    threshold = best * (1 + quantile**2 / dof)
-    found: list[OtherOptimum] = []
-    seen: list[tuple[tuple[str, ...], np.ndarray]] = []
-    for index in np.argsort(np.where(finite, losses, np.inf)):
-        if not (finite[index] and losses[index] <= threshold):
-            break
-        end = ends[index]
-        values = dict(zip(result.free_names, (float(v) for v in end), strict=True))
-        outside = []
-        for name, value in values.items():
-            interval = result.ci95.get(name)
-            if interval is None:
-                continue
-            low, high = interval
-            if (low is not None and value < low) or (high is not None and value > high):
-                outside.append(name)
-        if not outside:
-            continue
-        # The same optimum as one found already: the same parameters outside the interval
-        # and the others within 1 % (a parameter that runs off along a flat direction ends
-        # anywhere far out).
-        inside = np.array([name not in outside for name in result.free_names])
-        key = (tuple(outside), end[inside])
-        if any(key[0] == other[0] and np.allclose(key[1], other[1], rtol=1e-2)
-               for other in seen):
-            continue
-        seen.append(key)
-        found.append(OtherOptimum(int(index), values, float(losses[index]), tuple(outside)))
-    return found

@@ -58,6 +58,7 @@ from fitting.losses import (
     poisson_log_likelihood,
 )
 from fitting.models import Model, get_model
+from fitting.optima import with_other_optima
 from fitting.parameters import Layout, Parameter, Parameters, clip_into_bounds, make_layout
 from fitting.result import FitResult, FitSettings, RelativeErrors
 from fitting.solve import (
@@ -370,8 +371,14 @@ def fit(
 
 def _fit_one(model, data, params, weights, settings: FitSettings) -> FitResult:
     # One curve is a chunk of one: fit and fit_many share the engine and its programs.
-    return _fit_batch(model, [data], params, None if weights is None else [weights],
+    return _fit_final(model, [data], params, None if weights is None else [weights],
                       settings)[0]
+
+
+def _fit_final(model, curves, params, weights, settings: FitSettings) -> list[FitResult]:
+    """The fits of :func:`_fit_batch` with their intervals widened to hold the other optima
+    the multi-start found (:func:`fitting.optima.with_other_optima`)."""
+    return [with_other_optima(r) for r in _fit_batch(model, curves, params, weights, settings)]
 
 
 def _with_absolute_errors(result: FitResult) -> FitResult:
@@ -416,7 +423,7 @@ def fit_many(
     """
     settings = settings_from_keywords(loss, optimiser, multistart, relative_errors, **legacy)
     settings = with_error_model(settings, errors)
-    return _fit_batch(model, curves, params, weights, settings)
+    return _fit_final(model, curves, params, weights, settings)
 
 
 

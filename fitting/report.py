@@ -178,12 +178,14 @@ def identifiability_statements(result: FitResult) -> list[str]:
     for optimum in other_optima(result)[:1]:
         where = ", ".join(f"{n} = {v:.4g}" for n, v in optimum.values.items())
         outside = ", ".join(optimum.outside)
+        local = "; ".join(f"{n} {_bracket(result.linearised_intervals[n])}"
+                          for n in optimum.outside)
         statements.append(
             f"Another optimum fits the curve as well: start {optimum.start + 1} ended at "
             f"{where} (first-fit loss {optimum.loss:.4g}, within the 95 % threshold of the "
             f"best); there {outside} {'lies' if len(optimum.outside) == 1 else 'lie'} outside "
-            "the 95 % interval above, which describes the neighbourhood of this optimum only: "
-            "the curve does not choose between them.")
+            f"the linearised interval of the best optimum alone ({local}), so the 95 % "
+            "interval above is widened to hold them: the curve does not choose between them.")
         if result.free_names:
             for name in optimum.outside:
                 if name not in undetermined:
@@ -207,6 +209,13 @@ def identifiability_statements(result: FitResult) -> list[str]:
         statements.append("All fitted parameters are determined by this curve "
                           f"(relative standard errors below {limit:.0f} %).")
     return statements
+
+
+def _bracket(interval) -> str:
+    """``[low, high]`` of an interval, 4 significant digits (an open side as -inf/inf)."""
+    low, high = interval
+    return (f"[{-math.inf if low is None else low:.4g}, "
+            f"{math.inf if high is None else high:.4g}]")
 
 
 def peclet_from_variance_ratio(variance_ratio: float) -> float:

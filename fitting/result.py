@@ -181,6 +181,13 @@ class FitResult:
     #: Free parameters whose `ci95` is a profile-likelihood interval
     #: (:func:`fitting.diagnostics.with_profile_intervals`); the others' are linearised.
     profiled: tuple[str, ...] = field(default=(), repr=False)
+    #: Free parameters whose `ci95` was widened to hold another optimum of the fit
+    #: (:func:`fitting.optima.with_other_optima`).
+    joined: tuple[str, ...] = field(default=(), repr=False)
+    #: The linearised intervals of the best optimum alone, where `joined` is not empty
+    #: (``None``: `ci95` is that interval).
+    linearised_ci95: dict[str, tuple[float, float] | None] | None = field(default=None,
+                                                                          repr=False)
 
     def __post_init__(self) -> None:
         for name in ("weights", "predicted", "residuals", "jacobian", "start_losses",
@@ -192,6 +199,21 @@ class FitResult:
             ends = np.array(self.start_values, dtype=float)
             ends.flags.writeable = False
             object.__setattr__(self, "start_values", ends)
+
+    @property
+    def linearised_intervals(self) -> dict[str, tuple[float, float] | None]:
+        """The linearised 95 % intervals of the best optimum's neighbourhood, by name (the
+        same as `ci95` unless another optimum widened it, or a profile replaced it)."""
+        return self.ci95 if self.linearised_ci95 is None else self.linearised_ci95
+
+    def interval_kind(self, name: str) -> str | None:
+        """How the 95 % interval of `name` was found: ``'profile'``, ``'linearised'`` or
+        ``'linearised and other optima'`` (widened to hold them); ``None`` for none."""
+        if self.ci95.get(name) is None:
+            return None
+        if name in self.profiled:
+            return "profile"
+        return "linearised and other optima" if name in self.joined else "linearised"
 
     @property
     def time(self) -> np.ndarray:
@@ -382,8 +404,7 @@ class FitResult:
                 "value": number(value),
                 "stderr": number(self.stderr[name]),
                 "ci95": [number(interval[0]), number(interval[1])] if interval else None,
-                "interval": ("profile" if name in self.profiled else "linearised")
-                if interval else None,
+                "interval": self.interval_kind(name),
                 "vary": bool(setting.vary and setting.expr is None),
                 "expr": setting.expr,
                 "min": setting.min,

@@ -34,6 +34,7 @@ FITTING_LAYERS = (
     "fitting.residuals",
     "fitting.result",
     "fitting.physical",
+    "fitting.optima",
     "fitting.fit",
     "fitting.diagnostics",
     "fitting.gridsearch",
