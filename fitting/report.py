@@ -36,6 +36,7 @@ from fitting.gridsearch import GridResult
 from fitting.measurement import MEASUREMENT_PARAMETERS, MeasuredModel
 from fitting.models import get_model
 from fitting.physical import physical_quantities, quantity_column, quantity_unit
+from fitting.residuals import COUNTS_PER_MERGED_BIN, merged_counts
 from fitting.result import FitResult
 
 __all__ = [
@@ -882,6 +883,16 @@ def fit_figure(result: FitResult, grid: GridResult | None = None) -> FigureSpec:
     """
     every, note = _drawn(len(result.time))
     time = np.asarray(result.time, float)[every]
+    observed = np.asarray(result.observed, float)[every]
+    predicted = np.asarray(result.predicted, float)[every]
+    counting = result.error_model is not None and result.error_model.kind == "poisson"
+    if counting:
+        # A histogram of a fraction of a particle a bin is a cloud of 0, 1, 2 ... particles:
+        # drawn on the bins the lack-of-fit test merges (each expecting 10 particles), as
+        # counts over exposure, it shows what the fit is judged on.
+        time, observed, predicted = _merged_bins(result)
+        note = (f" (bins merged to {COUNTS_PER_MERGED_BIN:g} expected particles, "
+                "as the lack-of-fit test)")
     fine = plot_times(result.time)
     model = result.model
     unit = result.time_unit
@@ -899,12 +910,11 @@ def fit_figure(result: FitResult, grid: GridResult | None = None) -> FigureSpec:
         lines.append(f"errors: {result.error_model.kind}")
     return {
         "time": time,
-        "observed": _plottable(np.asarray(result.observed)[every]),
+        "observed": _plottable(observed),
         "fine": fine,
         "curve": _plottable(model.evaluate(fine, result.values)),
         "grid_curve": None if grid is None else _plottable(model.evaluate(fine, grid.values)),
-        "residual": _plottable(np.asarray(result.predicted)[every]
-                               - np.asarray(result.observed)[every]),
+        "residual": _plottable(predicted - observed),
         "data_label": f"data{note}",
         "fit_label": f"fit ({model.name}, {result.loss_name} = {result.loss:.3g})",
         "grid_label": "" if grid is None else f"grid search ({grid.loss_name} = {grid.loss:.3g})",
@@ -914,8 +924,24 @@ def fit_figure(result: FitResult, grid: GridResult | None = None) -> FigureSpec:
         "residual_label": (f"residual ({residual_unit})\nmodel - data"
                            + ("\n(points drawn as above)" if note else "")),
         "xlabel": f"time ({unit})",
-        "thinned": bool(note),
+        "thinned": bool(note) and not counting,
     }
+
+
+def _merged_bins(result: FitResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A counting fit's data and model on the merged bins of its lack-of-fit test
+    (:func:`fitting.residuals.merged_counts`): each bin's exposure-weighted mean time, and
+    the merged counts and model means over the merged exposure (the data's unit)."""
+    x = np.asarray(result.exposure, float)
+    used = x > 0
+    x = x[used]
+    k = x * np.asarray(result.observed, float)[used]
+    mu = np.clip(x * np.asarray(result.predicted, float)[used], 0.0, None)
+    counts, means, first = merged_counts(k, mu)
+    exposure = np.add.reduceat(x, first) if first.size else np.zeros(0)
+    time = (np.add.reduceat(x * np.asarray(result.time, float)[used], first) / exposure
+            if first.size else np.zeros(0))
+    return time, counts / exposure, means / exposure
 
 
 def render_fit_png(result: FitResult, grid: GridResult | None = None) -> bytes:

@@ -266,3 +266,23 @@ def test_counting_errors_on_values_that_are_no_counts_are_refused(tmp_path, caps
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "counting errors need counts" in err[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_a_counting_fit_is_drawn_on_the_bins_its_lack_of_fit_test_merges():
+    # The figure's points are the merged bins: their counts (value × merged exposure) add up
+    # to every particle counted, there are as many as the test's bins, and each expects at
+    # least 10 particles of the model drawn.
+    from fitting.report import fit_figure
+
+    curve, counts = _histogram(12)
+    result = fit(measured("adm"), curve, {}, errors="poisson")
+    figure = fit_figure(result)
+    merged, expected, first = merged_counts(counts, BIN * np.asarray(result.predicted))
+    exposure = np.add.reduceat(np.full(TIMES.size, BIN), first)
+    assert figure["observed"].size == result.lack_of_fit.n_points == merged.size
+    np.testing.assert_allclose(figure["observed"] * exposure, merged, rtol=1e-12)
+    assert math.isclose(float(np.sum(figure["observed"] * exposure)), float(counts.sum()))
+    assert np.all((figure["observed"] + figure["residual"]) * exposure
+                  >= COUNTS_PER_MERGED_BIN - 1e-9)
+    assert np.all(np.diff(figure["time"]) > 0)
+    assert "merged" in figure["data_label"]
