@@ -118,7 +118,9 @@ class FitResult:
       propagation through their expression); from the Gauss–Newton curvature, see
       :mod:`fitting.uncertainty`.
     - `ci95`: ``(low, high)`` 95 % interval by name (Student t with ``n - p`` degrees of
-      freedom), ``None`` for fixed parameters.
+      freedom), ``None`` for fixed parameters; widened to hold other optima of the fit
+      (`joined`, :mod:`fitting.optima`) or replaced by a profile (`profiled`); see
+      :meth:`interval_kind`.
     - `correlation`, `covariance`: matrices over `free_names`.
     - `loss`: the minimised loss, unscaled (``Σ w r²`` or the mean absolute error).
     - `sse`: ``Σ w r²`` at the optimum whatever the loss (for AIC/BIC and errors).
