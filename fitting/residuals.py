@@ -37,6 +37,7 @@ proportional noise, measurement model and combined error model, 0.0, 0.5, 1.0 an
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 
@@ -86,6 +87,7 @@ def _log_binomial(table: np.ndarray, n, k) -> np.ndarray:
     return np.where(valid, value, -np.inf)
 
 
+@functools.lru_cache(maxsize=4096)
 def runs_distribution(n_positive: int, n_negative: int) -> tuple[np.ndarray, np.ndarray]:
     """The exact distribution of the number of runs for a random order of two kinds.
 
@@ -105,7 +107,11 @@ def runs_distribution(n_positive: int, n_negative: int) -> tuple[np.ndarray, np.
     odd = np.logaddexp(_log_binomial(table, n1 - 1, k) + _log_binomial(table, n2 - 1, k - 1),
                        _log_binomial(table, n1 - 1, k - 1) + _log_binomial(table, n2 - 1, k))
     log_p = np.where(runs % 2 == 0, even, odd) - total
-    return runs, np.exp(log_p)
+    probability = np.exp(log_p)
+    # Cached (a study meets the same counts again and again): read-only.
+    runs.flags.writeable = False
+    probability.flags.writeable = False
+    return runs, probability
 
 
 def runs_test(residuals: np.ndarray) -> RunsTest:
@@ -179,13 +185,19 @@ def lag1_autocorrelation_p(residuals: np.ndarray, permutations: int = 1999,
     # of a million residuals at once took 16 GB.
     rows = max(1, DRAW_BLOCK_ELEMENTS // e.size)
     at_least = 0
+    neighbours = e[1:] * e[:-1]
     for start in range(0, permutations, rows):
         count = min(rows, permutations - start)
         if null == "signs":
-            shuffled = e * rng.choice([-1.0, 1.0], size=(count, e.size))
+            # The draws of rng.choice([-1, 1], size) (the same stream: it draws these
+            # integers), five times faster. With signs s_i = 2 b_i - 1, s_i s_(i+1) is
+            # 1 - 2 (b_i xor b_(i+1)), so each draw's sum is one product with e_i e_(i+1).
+            bits = rng.integers(0, 2, size=(count, e.size))
+            flips = (bits[:, 1:] ^ bits[:, :-1]).astype(float)
+            r1 = (neighbours.sum() - 2.0 * (flips @ neighbours)) / scale
         else:
             shuffled = rng.permuted(np.broadcast_to(e, (count, e.size)), axis=1)
-        r1 = np.sum(shuffled[:, 1:] * shuffled[:, :-1], axis=1) / scale
+            r1 = np.sum(shuffled[:, 1:] * shuffled[:, :-1], axis=1) / scale
         at_least += int(np.sum(r1 >= threshold))
     return float((1 + at_least) / (permutations + 1))
 
