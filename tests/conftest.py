@@ -46,9 +46,10 @@ def release_compiled_programs() -> None:
     import jax
 
     from fitting import engine, models, solve
+    from fitting.solve import second_order
 
     jax.clear_caches()
-    for cache in (solve.compiled_solver, solve._curvature_program, solve.compiled_curvature,
+    for cache in (solve.compiled_solver, second_order.curvature_program, solve.compiled_curvature,
                   engine.chunk_program, models._compiled_model,
                   models._four_compartment_moments_program):
         cache.cache_clear()
