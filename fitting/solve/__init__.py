@@ -56,8 +56,8 @@ second-order check) and :mod:`~fitting.solve.multistart` (starts and the multi-s
 This face re-exports their public names.
 """
 
-# Names imported by other fitting modules but not in the documented API (``__all__``)
-# are re-exported by a redundant alias.
+# Public names outside the documented API (``__all__``), some of them imported by other
+# fitting modules, are re-exported by a redundant alias.
 from fitting.solve.first_order import adam_minimise as adam_minimise
 from fitting.solve.levenberg_marquardt import lm_initial as lm_initial
 from fitting.solve.levenberg_marquardt import lm_step as lm_step
@@ -69,6 +69,7 @@ from fitting.solve.multistart import (
 )
 from fitting.solve.padding import pad_curve as pad_curve
 from fitting.solve.padding import padded_length
+from fitting.solve.programs import CACHE_SWITCH as CACHE_SWITCH
 from fitting.solve.programs import COMPILATION_CACHE_BYTES as COMPILATION_CACHE_BYTES
 from fitting.solve.programs import (
     EXPORT_SUFFIX,
