@@ -153,6 +153,9 @@ def lag1_autocorrelation(residuals: np.ndarray) -> float:
 
 #: Most draws x residuals the randomisation test holds at once (32 MB of float64).
 DRAW_BLOCK_ELEMENTS = 1 << 22
+#: Most draws x residuals of a random-sign test whose draws are kept for the next curve of
+#: the same length (2 MB each, 16 kept: 1,999 draws of up to 131 residuals).
+KEPT_DRAW_ELEMENTS = 1 << 18
 
 
 def lag1_autocorrelation_p(residuals: np.ndarray, permutations: int = 1999,
@@ -178,9 +181,15 @@ def lag1_autocorrelation_p(residuals: np.ndarray, permutations: int = 1999,
     observed = lag1_autocorrelation(e)
     if not math.isfinite(observed):
         return 1.0
-    rng = np.random.default_rng(seed)
     threshold = observed - 1e-12 * abs(observed)
     scale = float(e @ e)
+    if null == "signs" and e.size * permutations <= KEPT_DRAW_ELEMENTS:
+        # The draws depend on the seed, their number and the length only: kept.
+        neighbours = e[1:] * e[:-1]
+        r1 = (neighbours.sum() - 2.0 * (_sign_flips(seed, permutations, e.size) @ neighbours)
+              ) / scale
+        return float((1 + int(np.sum(r1 >= threshold))) / (permutations + 1))
+    rng = np.random.default_rng(seed)
     # Draws in blocks of rows, the same numbers in the same order as all at once: 1999 draws
     # of a million residuals at once took 16 GB.
     rows = max(1, DRAW_BLOCK_ELEMENTS // e.size)
@@ -189,17 +198,33 @@ def lag1_autocorrelation_p(residuals: np.ndarray, permutations: int = 1999,
     for start in range(0, permutations, rows):
         count = min(rows, permutations - start)
         if null == "signs":
-            # The draws of rng.choice([-1, 1], size) (the same stream: it draws these
-            # integers), five times faster. With signs s_i = 2 b_i - 1, s_i s_(i+1) is
-            # 1 - 2 (b_i xor b_(i+1)), so each draw's sum is one product with e_i e_(i+1).
-            bits = rng.integers(0, 2, size=(count, e.size))
-            flips = (bits[:, 1:] ^ bits[:, :-1]).astype(float)
-            r1 = (neighbours.sum() - 2.0 * (flips @ neighbours)) / scale
+            r1 = (neighbours.sum() - 2.0 * (_flips(rng, count, e.size) @ neighbours)) / scale
         else:
             shuffled = rng.permuted(np.broadcast_to(e, (count, e.size)), axis=1)
             r1 = np.sum(shuffled[:, 1:] * shuffled[:, :-1], axis=1) / scale
         at_least += int(np.sum(r1 >= threshold))
     return float((1 + at_least) / (permutations + 1))
+
+
+def _flips(rng: np.random.Generator, count: int, size: int) -> np.ndarray:
+    """`count` draws of random signs of `size` residuals, as whether neighbours differ.
+
+    The draws of ``rng.choice([-1, 1], (count, size))`` (the same stream: it draws these
+    integers), five times faster. With signs ``s_i = 2 b_i - 1``, ``s_i s_(i+1)`` is
+    ``1 - 2 (b_i xor b_(i+1))``, so a draw's ``sum s_i e_i s_(i+1) e_(i+1)`` is
+    ``sum e_i e_(i+1) - 2 flips · (e_i e_(i+1))``. Returns ``(count, size - 1)`` zeros and ones.
+    """
+    bits = rng.integers(0, 2, size=(count, size))
+    return (bits[:, 1:] ^ bits[:, :-1]).astype(float)
+
+
+@functools.lru_cache(maxsize=16)
+def _sign_flips(seed: int, permutations: int, size: int) -> np.ndarray:
+    """All draws of a random-sign test of `size` residuals (:func:`_flips`), read-only:
+    a study tests thousands of curves of a few lengths with the same seed."""
+    flips = _flips(np.random.default_rng(seed), permutations, size)
+    flips.flags.writeable = False
+    return flips
 
 
 # --- the verdict -------------------------------------------------------------------------------

@@ -71,3 +71,26 @@ def test_lag1_autocorrelation_p_in_blocks_of_draws_equals_all_draws_at_once(null
     monkeypatch.setattr(residuals, "DRAW_BLOCK_ELEMENTS", 7 * e.size)  # 7 draws per block
     assert lag1_autocorrelation_p(e, permutations=999, seed=2, null=null) == at_once
     assert 1 / 1000 < at_once < 1  # neither trivial bound
+
+
+def _random_sign_p_by_definition(e, permutations, seed):
+    """The random-sign probability written out: draws of rng.choice([-1, 1]), r1 of each."""
+    e = np.asarray(e, float)
+    observed = e[1:] @ e[:-1] / (e @ e)
+    signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=(permutations, e.size))
+    drawn = signs * e
+    r1 = np.sum(drawn[:, 1:] * drawn[:, :-1], axis=1) / (e @ e)
+    return (1 + np.sum(r1 >= observed - 1e-12 * abs(observed))) / (permutations + 1)
+
+
+@pytest.mark.parametrize("size", [3, 17, 64, 140, 3000])
+def test_random_sign_probability_equals_its_definition_draw_for_draw(size):
+    # The kept draws (short curves), the blocked draws (long ones) and ties (a curve whose
+    # residuals share one sign, where all-equal draws reproduce the observed r1 exactly).
+    rng = np.random.default_rng(size)
+    for e in (rng.standard_normal(size), np.abs(rng.standard_normal(size)),
+              np.cumsum(rng.standard_normal(size)), np.round(rng.standard_normal(size), 1)):
+        for seed in (0, 7):
+            for permutations in (1999, 99):
+                expected = _random_sign_p_by_definition(e, permutations, seed)
+                assert lag1_autocorrelation_p(e, permutations, seed, null="signs") == expected
