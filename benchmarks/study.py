@@ -8,7 +8,10 @@ study (:class:`fitting.study.batch.StudyRun`: measurement model A E(t), combined
 the records and summary written to a temporary folder):
 
 * in one process, timed after the solver programs have been compiled (a warm-up chunk with
-  curves of every padded length comes first);
+  curves of every padded length comes first): on its default threads (two chunks in flight
+  on 2 cores, :func:`fitting.study.batch.default_threads`: one chunk's compiled fit overlaps
+  the other's Python) and on one thread, with the same records; and once more with absolute
+  errors (one unweighted fit a curve, the peers' error model);
 * on a local Dask cluster of two worker processes, timed after each worker has fitted a
   warm-up chunk (the cluster's start is shown apart);
 * the peers, on the first ``--subset`` curves: a loop of ``scipy.optimize.curve_fit``, a
@@ -25,7 +28,8 @@ the study; if it is off by more than 1e-8 of the curve's peak anywhere, the benc
 
 The table gives curves per second and the ratio to the one-process run, the median and
 95th-percentile relative errors of tau and Pe, and interval coverage (share of curves whose
-95 % interval holds the true value). Run with ``nice``: it loads every core it is given.
+95 % interval holds the true value); the last line gives the ratios the targets are stated
+in. Run with ``nice``: it loads every core it is given.
 
     python benchmarks/study.py [--curves 10000] [--dask-curves N] [--subset 200] [--chunk 64]
                                [--workers 2]
@@ -112,14 +116,14 @@ def warm_curves(study):
     return list(seen.values())
 
 
-def run_one_process(plan, study):
+def run_one_process(plan, study, threads=None):
     from fitting.study.batch import StudyRun, fit_chunk
 
     fit_chunk(plan, warm_curves(study))
     with tempfile.TemporaryDirectory() as folder:
         run = StudyRun(plan, study, folder, CHUNK)
         began = time.perf_counter()
-        run.run(progress=False)
+        run.run(progress=False, threads=threads)
         seconds = time.perf_counter() - began
         records = list(run.records())
     return seconds, records
@@ -303,7 +307,7 @@ def main() -> None:
     args = parser.parse_args()
     CHUNK = args.chunk
     from fitting.solve import enable_compilation_cache
-    from fitting.study.batch import StudyPlan
+    from fitting.study.batch import StudyPlan, default_threads
 
     enable_compilation_cache()
     print(f"{os.cpu_count()} CPUs; load average before: {os.getloadavg()[0]:.2f}", flush=True)
@@ -315,12 +319,30 @@ def main() -> None:
               f"{'cov Pe':>8}")
     rows = []
 
+    threads = default_threads()
     seconds, records = run_one_process(plan, study)
     figures = accuracy(tau, peclet, *ours(study, records))
     unit = args.curves / seconds
-    rows.append(line("axialmix, one process", args.curves, seconds, unit, figures))
+    rates = {"ours": unit}
+    rows.append(line(f"axialmix, one process ({threads} threads)", args.curves, seconds, unit,
+                     figures))
     converged = np.mean([r["converged"] for r in records])
     print(rows[-1], f"(converged {converged:.1%})", flush=True)
+    if threads > 1:
+        seconds, single = run_one_process(plan, study, threads=1)
+        same = all(a["parameters"] == b["parameters"] for a, b in
+                   zip(records, single, strict=True))
+        rates["one thread"] = args.curves / seconds
+        rows.append(line("axialmix, one process (1 thread)", args.curves, seconds, unit,
+                         accuracy(tau, peclet, *ours(study, single)))
+                    + f"  (parameters equal: {same})")
+        print(rows[-1], flush=True)
+    absolute = StudyPlan("adm", errors="absolute")
+    seconds, plain = run_one_process(absolute, study)
+    rows.append(line(f"axialmix, absolute errors ({threads} thr.)", args.curves, seconds, unit,
+                     accuracy(tau, peclet, *ours(study, plain)))
+                + "  (the peers' error model)")
+    print(rows[-1], flush=True)
 
     subset = min(args.subset, args.curves)
     head = accuracy(tau[:subset], peclet[:subset], *ours(study, records[:subset]))
@@ -330,6 +352,7 @@ def main() -> None:
     print(rows[-1], flush=True)
 
     seconds, estimates, intervals = run_scipy(study, subset)
+    rates["scipy"] = subset / seconds
     rows.append(line("scipy curve_fit loop", subset, seconds, unit,
                      accuracy(tau[:subset], peclet[:subset], estimates, intervals)))
     print(rows[-1], flush=True)
@@ -338,6 +361,7 @@ def main() -> None:
                      accuracy(tau[:subset], peclet[:subset], estimates, intervals)))
     print(rows[-1], flush=True)
     startup, seconds, estimates, intervals = run_pool(study, subset, args.workers)
+    rates["pool"] = subset / seconds
     rows.append(line(f"scipy loop, joblib {args.workers} processes", subset, seconds, unit,
                      accuracy(tau[:subset], peclet[:subset], estimates, intervals))
                 + f"  (+{startup:.1f} s start)")
@@ -347,6 +371,7 @@ def main() -> None:
     part = study if count == args.curves else type(study)(
         study.curves[:count], (), study.levels[:count], study.inlets[:count], "synthetic")
     startup, seconds, dask_records = run_dask(plan, part, args.workers)
+    rates["dask"] = count / seconds
     same = all(a["parameters"] == b["parameters"] for a, b in
                zip(records[:count], dask_records, strict=True))
     rows.append(line(f"axialmix, Dask {args.workers} workers", count, seconds, unit,
@@ -362,6 +387,11 @@ def main() -> None:
     print("-" * len(header))
     print("\n".join(rows))
     print(f"load average after: {os.getloadavg()[0]:.2f}")
+    print(f"ours {rates['ours']:.1f} curves/s: {rates['ours'] / rates['scipy']:.2f} x the scipy "
+          f"loop, {rates['ours'] / rates['pool']:.2f} x the {args.workers}-process pool; Dask "
+          f"{args.workers} workers {rates['dask'] / rates['ours']:.2f} x one process"
+          + (f", {rates['dask'] / rates['one thread']:.2f} x one thread"
+             if "one thread" in rates else ""))
 
 
 if __name__ == "__main__":

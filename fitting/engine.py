@@ -34,6 +34,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import threading
 import time as _time
 from dataclasses import dataclass
 
@@ -306,6 +307,22 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
             new = jnp.where(real, 1.0 / jnp.maximum(variance, np.finfo(float).tiny), 0.0)
             return new / jnp.max(new), jnp.stack([a, b]), ~((a == 0.0) & (b == 0.0))
 
+        def _resumed(record, w, size):
+            """Levenberg–Marquardt's state after its first iteration from a finished fit's
+            end under new weights `w`: that iteration only evaluates at its start, where the
+            model's values and Jacobian are the finished fit's own, so they are reused, not
+            evaluated again (the same numbers; one model evaluation fewer a pass)."""
+            used = w > 0
+            root = jnp.sqrt(w / size)
+            predicted, physical = record["predicted"], record["jacobian"]
+            residual = jnp.where(used, root * (predicted - observed), 0.0)
+            scaled = jnp.where(used[:, None],
+                               root[:, None] * physical * record["derivative"], 0.0)
+            start = lm_initial(record["u"], empty)
+            carry = lm_step(lambda u: (residual, scaled, (predicted, physical)), start, options)
+            # No evaluation was made: the count stays that of the evaluations made.
+            return (*carry[:9], start[9], *carry[10:])
+
         size = loss_size(weights)
         probe = _record(lm_initial(starts[0], empty), to_free, size)
         blank = jax.tree.map(jnp.zeros_like, probe)
@@ -368,12 +385,12 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
             pass_done = ended & ~in_starts
             finishing = first_done | pass_done
             new_pass = finishing & ~stop
-            restart_u = jnp.where(next_start, starts[jnp.minimum(phase + 1, count_starts - 1)],
-                                  finished["u"])
-            fresh = lm_initial(restart_u, empty)
+            fresh = lm_initial(starts[jnp.minimum(phase + 1, count_starts - 1)], empty)
             new_w = jnp.where(new_pass, w_next, state["w"])
-            new_lm = jax.tree.map(lambda a, b: jnp.where(next_start | new_pass, a, b), fresh,
-                                  lm)
+            resumed = _resumed(finished, w_next, loss_size(w_next))
+            new_lm = jax.tree.map(
+                lambda a, b, c: jnp.where(next_start, a, jnp.where(new_pass, b, c)),
+                fresh, resumed, lm)
 
             def pick(flag, a, b):
                 return jax.tree.map(lambda x, y: jnp.where(flag, x, y), a, b)
@@ -506,7 +523,9 @@ def describe_device(length: int = 64) -> str:
             f"{lanes} side by side")
 
 
-@functools.lru_cache(maxsize=64)
+_PROGRAMS = threading.Lock()
+
+
 def chunk_program(model, layout: Layout, options: SolverPlan, errors: ErrorPlan,
                   lanes: int) -> Program:
     """The compiled chunk fit of a model, layout (its scale set to 1), plan and error model.
@@ -518,12 +537,24 @@ def chunk_program(model, layout: Layout, options: SolverPlan, errors: ErrorPlan,
     **Returns:** a program of ``(active (curves,), starts (curves, starts, free), warm
     (curves, starts), base (curves, parameters), scale (curves, free), time, observed,
     weights (curves, samples))``, compiled once per shape; kept as an exported program
-    across processes for the built-in models (:func:`fitting.solve.enable_compilation_cache`).
+    across processes for the built-in models (:func:`fitting.solve.enable_compilation_cache`);
+    one per arguments even when threads ask at once.
     """
+    with _PROGRAMS:
+        return _chunk_program(model, layout, options, errors, lanes)
+
+
+@functools.lru_cache(maxsize=64)
+def _chunk_program(model, layout: Layout, options: SolverPlan, errors: ErrorPlan,
+                   lanes: int) -> Program:
+    """The program of :func:`chunk_program`, kept per arguments."""
     layout = dataclasses.replace(layout, scale=(1.0,) * len(layout.free))
     return Program(_chunk_function(model, layout, options, errors, lanes),
                     f"chunk-{model.name}",
                     export_key(model, layout, options, errors, lanes, "chunk"))
+
+
+chunk_program.cache_clear = _chunk_program.cache_clear  # the programs dropped, as of any cache
 
 
 def fit_chunk_arrays(model, layout: Layout, options: SolverPlan, errors: ErrorPlan, starts,

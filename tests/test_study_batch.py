@@ -281,3 +281,33 @@ def test_killed_study_restarted_loses_and_repeats_no_curve(tmp_path):
     assert [r["parameters"] for r in resumed] == [r["parameters"] for r in whole]
     print(f"killed with {before} of {len(runs)} curves written; restarted: {len(ids)} curves, "
           "each once, equal to an uninterrupted run")
+
+
+def test_chunks_on_two_threads_give_the_records_of_one_thread(tmp_path):
+    # Curves of three padded lengths (three programs), in chunks of 3 so that several chunks
+    # are in flight on two threads; the records must not depend on the threads (only the
+    # wall times may), and the journal keeps the study's order.
+    rng = np.random.default_rng(11)
+    curves = []
+    for i in range(10):
+        tau, peclet, size = rng.uniform(20, 90), rng.uniform(8, 80), int(rng.integers(14, 60))
+        t = np.linspace(0.0, 3.0 * tau, size)
+        exact = np.asarray(exit_age_closed(t, tau, peclet))
+        curves.append(Curve(f"t{i}", t, exact + 0.02 * exact.max() * rng.standard_normal(size),
+                            time_unit="s", source="synthetic"))
+    from fitting.study.input import Study
+
+    study = Study(tuple(curves), (), tuple(() for _ in curves), tuple(None for _ in curves),
+                  "synthetic")
+    plan = StudyPlan("adm")
+    summaries = []
+    for threads in (1, 2):
+        run = StudyRun(plan, study, tmp_path / f"threads{threads}", chunk=3)
+        assert run.run(progress=False, threads=threads) == len(study)
+        records = [json.loads(line) for line in
+                   (tmp_path / f"threads{threads}" / JOURNAL_NAME).read_text().splitlines()[1:]]
+        for line in records:
+            line["record"].pop("wall_time")
+        summaries.append(records)
+    assert [r["curve"] for r in summaries[1]] == list(study.ids)
+    assert summaries[1] == summaries[0]

@@ -8,6 +8,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
+import threading
 import time as _time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -143,20 +144,26 @@ class Program:
         self.name = name
         self.key = key
         self.executables: dict = {}
+        self._compiling = threading.Lock()
 
     def executable(self, arguments: Sequence[np.ndarray]) -> tuple[Callable, float]:
-        """The compiled program for these arguments' shapes, and the seconds it took to get."""
+        """The compiled program for these arguments' shapes, and the seconds it took to get
+        (thread-safe: threads asking for the same shapes at once compile it once)."""
         signature = tuple((a.shape, a.dtype) for a in arguments)
         found = self.executables.get(signature)
         if found is not None:
             return found, 0.0
-        began = _time.perf_counter()
-        specs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in arguments]
-        function = self.function
-        if self.key is not None and _EXPORT_FOLDER is not None:
-            function = self._exported(specs)
-        found = self.executables[signature] = function.lower(*specs).compile()
-        return found, _time.perf_counter() - began
+        with self._compiling:
+            found = self.executables.get(signature)
+            if found is not None:
+                return found, 0.0
+            began = _time.perf_counter()
+            specs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in arguments]
+            function = self.function
+            if self.key is not None and _EXPORT_FOLDER is not None:
+                function = self._exported(specs)
+            found = self.executables[signature] = function.lower(*specs).compile()
+            return found, _time.perf_counter() - began
 
     def _exported(self, specs) -> Callable:
         shapes = tuple((s.shape, str(s.dtype)) for s in specs)

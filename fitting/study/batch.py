@@ -35,6 +35,8 @@ study around the fits:
 
 from __future__ import annotations
 
+import collections
+import concurrent.futures
 import contextlib
 import functools
 import json
@@ -69,7 +71,7 @@ from fitting.solve import MultiStart, enable_compilation_cache
 from fitting.study.input import Study, factor_value
 
 __all__ = ["CURVE_FOLDER", "DEFAULT_CHUNK", "JOURNAL_NAME", "StudyPlan", "StudyRun", "fit_chunk",
-           "fit_chunk_drawn", "map_chunks", "plan_model", "study_table"]
+           "fit_chunk_drawn", "default_threads", "map_chunks", "plan_model", "study_table"]
 
 #: Curves per chunk (and per Dask task) unless told.
 DEFAULT_CHUNK = 64
@@ -481,7 +483,8 @@ class StudyRun:
         return self.plan, curves, inlets if any(x is not None for x in inlets) else None
 
     def run(self, *, workers: int | None = None, scheduler: str | None = None,
-            stop: Callable[[], bool] | None = None, progress: bool | None = None) -> int:
+            stop: Callable[[], bool] | None = None, progress: bool | None = None,
+            threads: int | None = None) -> int:
         """Fit the pending curves, appending each finished chunk; then write the summary.
 
         **Arguments:**
@@ -492,6 +495,8 @@ class StudyRun:
           chunks stay written).
         - `progress`: show a progress bar (``None``: when standard error is a terminal,
           else a line per chunk).
+        - `threads`: in this process, chunks fitted side by side (``None``:
+          :func:`default_threads`); the records are the same with any number.
 
         **Returns:** the number of curves fitted by this call.
         """
@@ -518,7 +523,8 @@ class StudyRun:
         try:
             task = fit_chunk_drawn if self.plots else fit_chunk
             map_chunks(task, ((indices, self._task(indices)) for indices in self._chunks()),
-                       workers, scheduler, stop, finished)
+                       workers, scheduler, stop, finished,
+                       threads=default_threads() if threads is None else threads)
         finally:
             bar.close()
         if not stop():
@@ -537,9 +543,23 @@ def curve_file_stem(name: str) -> str:
     return stem if stem.strip(".") else "curve"
 
 
+def default_threads() -> int:
+    """Threads of an in-process study: 2 where this process may use at least 2 cores, else 1.
+
+    Two, not more: a chunk's compiled fit releases Python's lock while it runs, so one
+    thread's compiled work overlaps the other's Python (starts, results, records); a third
+    would only queue for the lock.
+    """
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return 2 if cores >= 2 else 1
+
+
 def map_chunks(task: Callable, chunks: Iterator[tuple[Any, tuple]], workers: int | None,
                scheduler: str | None, stop: Callable[[], bool],
-               finished: Callable[[Any, Any], None]) -> None:
+               finished: Callable[[Any, Any], None], *, threads: int = 1) -> None:
     """Run a task on each chunk, in this process or on Dask, handing on each result.
 
     **Arguments:**
@@ -547,18 +567,26 @@ def map_chunks(task: Callable, chunks: Iterator[tuple[Any, tuple]], workers: int
     - `task`: a module-level function (Dask sends it to the workers by reference).
     - `chunks`: ``(key, arguments)`` pairs; ``task(*arguments)`` is run for each.
     - `workers`: a local Dask cluster of this many single-threaded processes; `scheduler`:
-      the Dask scheduler at this address; neither: in this process, in order.
-    - `stop`: asked between chunks; true stops the run (tasks in flight are cancelled).
-    - `finished`: called as ``finished(key, result)`` in this process, in the order the
-      chunks finish; on Dask :data:`CHUNKS_PER_WORKER` tasks per worker are in flight.
+      the Dask scheduler at this address; neither: in this process.
+    - `stop`: asked between chunks; true stops the run (tasks in flight are cancelled on
+      Dask; in this process a chunk once begun is finished and handed on).
+    - `finished`: called as ``finished(key, result)`` in this process: in this process in
+      the chunks' order, on Dask in the order they finish, with :data:`CHUNKS_PER_WORKER`
+      tasks per worker in flight.
+    - `threads`: in this process, chunks run side by side on this many threads (the task
+      must be thread-safe and its result independent of the thread; :func:`fit_chunk` is);
+      1: one after another.
 
     **Returns:** ``None``; a task's exception is raised here.
     """
     if workers is None and scheduler is None:
-        for key, arguments in chunks:
-            if stop():
-                return
-            finished(key, task(*arguments))
+        if threads <= 1:
+            for key, arguments in chunks:
+                if stop():
+                    return
+                finished(key, task(*arguments))
+            return
+        _map_on_threads(task, chunks, stop, finished, threads)
         return
     from dask.distributed import as_completed
 
@@ -583,6 +611,28 @@ def map_chunks(task: Callable, chunks: Iterator[tuple[Any, tuple]], workers: int
                     other.cancel()
                 return
             submit()
+
+
+def _map_on_threads(task: Callable, chunks: Iterator[tuple[Any, tuple]],
+                    stop: Callable[[], bool], finished: Callable[[Any, Any], None],
+                    threads: int) -> None:
+    """:func:`map_chunks` in this process with `threads` chunks in flight, each handed on
+    in the chunks' order as soon as it and those before it are done."""
+    pool = concurrent.futures.ThreadPoolExecutor(threads, thread_name_prefix="axialmix-chunk")
+    in_flight: collections.deque = collections.deque()
+    try:
+        for key, arguments in chunks:
+            if stop():
+                break
+            in_flight.append((key, pool.submit(task, *arguments)))
+            if len(in_flight) >= threads:
+                key, future = in_flight.popleft()
+                finished(key, future.result())
+        while in_flight:  # begun chunks are finished and handed on, stopped or not
+            key, future = in_flight.popleft()
+            finished(key, future.result())
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 @contextlib.contextmanager
