@@ -53,6 +53,15 @@ FITTING_LAYERS = (
     "fitting.study.ensemble",
     "fitting.cli._outputs",  # the output convention every sub-command writes by
     "fitting.cli.anova",
+    "fitting.cli.fit.options",  # the fit sub-command, one concept a module, then its face
+    "fitting.cli.fit.inputs",
+    "fitting.cli.fit.outfolder",
+    "fitting.cli.fit.supervise",
+    "fitting.cli.fit.curve",
+    "fitting.cli.fit.report",
+    "fitting.cli.fit.compare",
+    "fitting.cli.fit.study",
+    "fitting.cli.fit.driver",
     "fitting.cli.fit",
     "fitting.cli.simulate",
     "fitting.cli.globalfit",
