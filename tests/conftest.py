@@ -50,8 +50,8 @@ def release_compiled_programs() -> None:
 
     jax.clear_caches()
     for cache in (solve.compiled_solver, second_order.curvature_program, solve.compiled_curvature,
-                  engine.chunk_program, models._compiled_model,
-                  models._four_compartment_moments_program):
+                  engine.chunk_program, models.base._compiled_model,
+                  models.network._four_compartment_moments_program):
         cache.cache_clear()
     gc.collect()
 

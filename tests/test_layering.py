@@ -26,6 +26,13 @@ FITTING_LAYERS = (
     "fitting.parameters",
     "fitting.losses",
     "fitting.data",
+    "fitting.models.base",  # the models, one concept a module, then their face
+    "fitting.models.moments",
+    "fitting.models.inlet",
+    "fitting.models.adm",
+    "fitting.models.exchange",
+    "fitting.models.network",
+    "fitting.models.registry",
     "fitting.models",
     "fitting.measurement",
     "fitting.solve.status",  # the optimiser core, one concept a module, then its face
