@@ -19,7 +19,7 @@ likelihood (:func:`fitting.diagnostics.profile_likelihood`) checks it where it m
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -110,13 +110,14 @@ def quantity_column(key: str, time_unit: str) -> tuple[str, str]:
     return key, ""
 
 
-def _values_with(result: FitResult, changes: Mapping[str, float]) -> dict[str, float]:
-    """The fitted values with some free ones changed and the tied ones recomputed."""
+def _values_with(result: FitResult, changes: Mapping[str, float],
+                 tied: Sequence[tuple[str, Any]]) -> dict[str, float]:
+    """The fitted values with some free ones changed and the tied ones (``(name, parsed
+    expression)`` pairs, in order) recomputed."""
     values = dict(result.values)
     values.update(changes)
-    layout = make_layout(result.model.name, result.model.parameter_names, result.init_params)
-    for name, expr in layout.tied:
-        values[name] = float(evaluate_expression(parse_expression(expr), values))
+    for name, expression in tied:
+        values[name] = float(evaluate_expression(expression, values))
     return values
 
 
@@ -146,10 +147,12 @@ def physical_quantities(result: FitResult, length: float | None = None
     if result.model.equivalent_adm is None:
         return {}
     unit = result.time_unit
+    layout = make_layout(result.model.name, result.model.parameter_names, result.init_params)
+    tied = [(name, parse_expression(expr)) for name, expr in layout.tied]
 
     def evaluate(changes: Mapping[str, float]) -> dict[str, float]:
-        return hook_numbers(result.model.equivalent_adm(_values_with(result, changes), length,
-                                                    unit))
+        return hook_numbers(result.model.equivalent_adm(_values_with(result, changes, tied),
+                                                    length, unit))
 
     free = list(result.free_names)
     return propagated_quantities(evaluate, {n: float(result.values[n]) for n in free},

@@ -52,6 +52,7 @@ __all__ = [
     "RunsTest",
     "lag1_autocorrelation",
     "lag1_autocorrelation_p",
+    "lag1_signs_normal_p",
     "counting_lack_of_fit",
     "lack_of_fit_test",
     "merged_counts",
@@ -154,8 +155,8 @@ def lag1_autocorrelation(residuals: np.ndarray) -> float:
 #: Most draws x residuals the randomisation test holds at once (32 MB of float64).
 DRAW_BLOCK_ELEMENTS = 1 << 22
 #: Most draws x residuals of a random-sign test whose draws are kept for the next curve of
-#: the same length (2 MB each, 16 kept: 1,999 draws of up to 131 residuals).
-KEPT_DRAW_ELEMENTS = 1 << 18
+#: the same length (1 MB each, 64 lengths kept: 1,999 draws of up to 65 residuals).
+KEPT_DRAW_ELEMENTS = 1 << 17
 
 
 def lag1_autocorrelation_p(residuals: np.ndarray, permutations: int = 1999,
@@ -173,7 +174,10 @@ def lag1_autocorrelation_p(residuals: np.ndarray, permutations: int = 1999,
       offset the model lacks), since reordering or r1's own normalisation hide it.
 
     **Returns:** ``(1 + #{draws with r1 >= observed}) / (permutations + 1)``; 1 when every
-    residual is zero.
+    residual is zero. With ``null="signs"`` and at least :data:`NORMAL_FROM` residuals, the
+    probability from the null distribution's exact cumulants instead
+    (:func:`lag1_signs_normal_p`, no draws), unless the residuals are concentrated on a few
+    points.
     """
     if null not in ("order", "signs"):
         raise ValueError(f"null must be 'order' or 'signs', got {null!r}")
@@ -183,6 +187,10 @@ def lag1_autocorrelation_p(residuals: np.ndarray, permutations: int = 1999,
         return 1.0
     threshold = observed - 1e-12 * abs(observed)
     scale = float(e @ e)
+    if null == "signs" and e.size >= NORMAL_FROM:
+        p = lag1_signs_normal_p(e)
+        if p is not None:
+            return p
     if null == "signs" and e.size * permutations <= KEPT_DRAW_ELEMENTS:
         # The draws depend on the seed, their number and the length only: kept.
         neighbours = e[1:] * e[:-1]
@@ -218,13 +226,72 @@ def _flips(rng: np.random.Generator, count: int, size: int) -> np.ndarray:
     return (bits[:, 1:] ^ bits[:, :-1]).astype(float)
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=64)
 def _sign_flips(seed: int, permutations: int, size: int) -> np.ndarray:
     """All draws of a random-sign test of `size` residuals (:func:`_flips`), read-only:
     a study tests thousands of curves of a few lengths with the same seed."""
     flips = _flips(np.random.default_rng(seed), permutations, size)
     flips.flags.writeable = False
     return flips
+
+
+#: Residuals from which the random-sign test of the lag-1 autocorrelation is computed from
+#: its null distribution's exact cumulants (:func:`lag1_signs_normal_p`) instead of 1,999
+#: random draws (O(n) instead of O(1999 n): 8 s for a million residuals). Below it the test
+#: draws, and its results are unchanged.
+NORMAL_FROM = 20_000
+#: Largest ``Σ a⁴ / (Σ a²)²`` (``a_i = e_i e_(i+1)``) at which that approximation is used:
+#: the reciprocal of an effective number of terms of at least 100 (for normal noise it is
+#: about 9/n; at 0.01 to 0.05 the approximation was still within 0.003 of 100,000 random
+#: draws). Residuals dominated by a few points keep the random draws.
+NORMAL_CONCENTRATION = 0.01
+
+
+def lag1_signs_normal_p(residuals: np.ndarray) -> float | None:
+    """The random-sign probability of a lag-1 autocorrelation at least the observed, from the
+    exact cumulants of its null distribution (for long curves).
+
+    Under random signs ``s_i`` of the residuals, ``r1 = Σ s_i s_(i+1) a_i / Σ e_i²`` with
+    ``a_i = e_i e_(i+1)``, and the products ``s_i s_(i+1)`` are independent random signs:
+    r1 is a weighted sum of independent signs, symmetric about 0, with exact variance
+    ``Σ a_i² / (Σ e_i²)²`` and fourth cumulant ``-2 Σ a_i⁴ / (Σ e_i²)⁴``. Its upper tail is
+    the normal one corrected by that fourth cumulant (the Edgeworth expansion of a symmetric
+    sum, whose error is of order ``(Σ a⁴ / (Σ a²)²)^(3/2)``; the uncorrected normal tail is off
+    by about ``Σ a⁴ / (Σ a²)²``, 1e-5 for 100,000 normal residuals). The randomisation test
+    it replaces (:func:`lag1_autocorrelation_p`, 1,999 draws) has a Monte Carlo standard error
+    of 0.002 at p = 0.01 and 0.011 at p = 0.5, and reports at least 1/2000.
+
+    **Arguments:** `residuals`: shape ``(n,)``, ``n >= 3``, in time order (any unit).
+
+    **Returns:** the one-sided probability (no floor at 1/2000); 1 when every residual is
+    zero; ``None`` when the residuals are too concentrated on a few points for the
+    approximation (``Σ a⁴ / (Σ a²)²`` above :data:`NORMAL_CONCENTRATION`), or all their
+    neighbour products are zero.
+    """
+    e = np.asarray(residuals, float)
+    observed = lag1_autocorrelation(e)
+    if not math.isfinite(observed):
+        return 1.0
+    products = e[1:] * e[:-1]
+    # Scaled by the largest product, so that squares and fourth powers neither overflow
+    # nor underflow.
+    largest = float(np.max(np.abs(products)))
+    if largest == 0.0:
+        return None
+    weights = products / largest
+    second = float(weights @ weights)
+    fourth = float(np.sum(weights**4))
+    concentration = fourth / second**2
+    if concentration > NORMAL_CONCENTRATION:
+        return None
+    threshold = observed - 1e-12 * abs(observed)
+    # r1 / sd with sd = sqrt(Σ a²) / Σ e²: the observed statistic in standard units.
+    x = threshold * float(e @ e) / (largest * math.sqrt(second))
+    excess_kurtosis = -2.0 * concentration
+    density = math.exp(-0.5 * x * x) / math.sqrt(2.0 * math.pi)
+    tail = 0.5 * math.erfc(x / math.sqrt(2.0)) + excess_kurtosis / 24.0 * (x**3 - 3.0 * x
+                                                                           ) * density
+    return float(min(1.0, max(0.0, tail)))
 
 
 # --- the verdict -------------------------------------------------------------------------------
