@@ -1,7 +1,7 @@
-"""The model type: a :class:`Model` is a named, immutable JAX function ``f(t, params) -> E(t)``
-with its parameters' default settings, optional hooks (start values, equivalent ADM,
-statements, units, meanings, step and inlet responses), and a user's own function wrapped as
-one (:func:`custom_model`)."""
+"""The model type: a :class:`~fitting.models.Model` is a named, immutable JAX function
+``f(t, params) -> E(t)`` with its parameters' default settings, optional hooks (start values,
+equivalent ADM, statements, units, meanings, step and inlet responses), and a user's own
+function wrapped as one (:func:`~fitting.models.custom_model`)."""
 
 from __future__ import annotations
 

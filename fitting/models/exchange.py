@@ -1,6 +1,6 @@
 """Dead zones and units in series (MODELS.md section 6): the ADM and tanks in series exchanging
 with a dead zone, and the ADM followed by a stirred tank, exact through the transfer functions
-of :mod:`axialmix.analytic.transfer`."""
+of :mod:`axialmix.analytic` (``axialmix.analytic.transfer``)."""
 
 from __future__ import annotations
 

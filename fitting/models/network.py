@@ -1,6 +1,6 @@
 """Compartment-network models (MODELS.md section 3): the four-compartment 2 × 2 network with
 its twin solutions, and a model from any network file of :mod:`axialmix.network`
-(:func:`network_model`)."""
+(:func:`~fitting.models.network_model`)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The built-in models by name: :data:`MODELS` and :func:`get_model`."""
+"""The built-in models by name: ``MODELS`` and :func:`~fitting.models.get_model`."""
 
 from __future__ import annotations
 

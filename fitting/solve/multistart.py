@@ -1,6 +1,6 @@
 """The multi-start solver: start points, the compiled single-start program run over starts
 and curves, the best start checked by a Gauss–Newton step and polished where
-Levenberg–Marquardt stopped short (:class:`MultiStartSolver`)."""
+Levenberg–Marquardt stopped short (:class:`~fitting.solve.MultiStartSolver`)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
-"""Compiled programs and their caches across processes: a :class:`Program` compiled once per
-argument shapes, JAX's persistent compilation cache (:func:`enable_compilation_cache`), and
-the :mod:`jax.export` files of the built-in models' programs, keyed by
-:func:`model_identity` and :func:`export_key`."""
+"""Compiled programs and their caches across processes: a ``Program`` compiled once per
+argument shapes, JAX's persistent compilation cache
+(:func:`~fitting.solve.enable_compilation_cache`), and the :mod:`jax.export` files of the
+built-in models' programs, keyed by :func:`~fitting.solve.model_identity` and
+``export_key``."""
 
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
-"""The optimiser's settings: the local method and its tolerances (:class:`Optimiser`), the
-starts (:class:`MultiStart`), and the static plan one compiled solver is built for
-(:class:`SolverPlan`, :func:`make_plan`)."""
+"""The optimiser's settings: the local method and its tolerances
+(:class:`~fitting.solve.Optimiser`), the starts (:class:`~fitting.solve.MultiStart`), and the
+static plan one compiled solver is built for (:class:`~fitting.solve.SolverPlan`,
+:func:`~fitting.solve.make_plan`)."""
 
 from __future__ import annotations
 
