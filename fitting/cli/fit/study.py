@@ -170,6 +170,15 @@ class _StudyExecution(Supervised):
             if run.resumed:
                 print(f"axialmix fit: continuing {self.out}: {run.resumed} of {len(run.study)} "
                       "curves were fitted before", file=sys.stderr, flush=True)
+            if self.args.workers is None and self.args.scheduler is None:
+                from fitting.engine import describe_device
+                from fitting.study.batch import default_threads
+
+                pending = len(run.pending)
+                at_once = max(1, min(default_threads(), -(-pending // run.chunk)))
+                print(f"axialmix fit: {pending} curves in this process, in chunks of "
+                      f"{run.chunk}, {at_once} at once; {describe_device()}",
+                      file=sys.stderr, flush=True)
             run.run(workers=self.args.workers, scheduler=self.args.scheduler,
                     stop=self.stop.is_set)
         except ValueError as error:
