@@ -6,10 +6,8 @@ one compiled multi-start solver (:mod:`fitting.solve`), then computes the uncert
 (:mod:`fitting.uncertainty`) into an immutable :class:`~fitting.result.FitResult`.
 
 Settings are small immutable modules: :class:`~fitting.solve.Optimiser`,
-:class:`~fitting.solve.MultiStart` and :class:`~fitting.result.RelativeErrors`. The keyword
-arguments of earlier releases (``method``, ``n_starts``, ``seed``, ``max_steps``, ``tol``,
-``ftol``, ``xtol``, ``warmup_steps``, ``learning_rate``, ``relative_errors``) still work for
-one release, mapped onto these by :func:`settings_from_keywords` with a DeprecationWarning.
+:class:`~fitting.solve.MultiStart` and :class:`~fitting.result.RelativeErrors`, gathered
+into one :class:`~fitting.result.FitSettings` by :func:`settings_from_keywords`.
 
 * Starts: by default a fit runs from the start values and, when those differ from the
   model's method-of-moments estimate, from that estimate too (a start whose model curve
@@ -35,10 +33,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -88,52 +84,21 @@ from fitting.uncertainty import (
 
 __all__ = ["fit", "fit_many", "prepare", "settings_from_keywords"]
 
-#: The keyword arguments of earlier releases and the setting each one maps onto.
-LEGACY_KEYWORDS = {
-    "method": ("optimiser", "method"), "max_steps": ("optimiser", "max_steps"),
-    "tol": ("optimiser", "tol"), "ftol": ("optimiser", "ftol"), "xtol": ("optimiser", "xtol"),
-    "learning_rate": ("optimiser", "learning_rate"),
-    "n_starts": ("multistart", "n_starts"), "seed": ("multistart", "seed"),
-    "warmup_steps": ("multistart", "warmup_steps"),
-    "relative_errors": ("relative_errors", None),
-}
-
 
 def settings_from_keywords(loss: str = "sse", optimiser: Optimiser | None = None,
                            multistart: MultiStart | None = None,
-                           relative_errors: RelativeErrors | bool | None = None,
-                           warn: bool = True, **legacy: Any) -> FitSettings:
-    """The one mapping from the keyword arguments of earlier releases onto :class:`FitSettings`.
+                           relative_errors: RelativeErrors | bool | None = None) -> FitSettings:
+    """The one mapping from the keyword arguments of :func:`fit` onto :class:`FitSettings`.
 
     **Arguments:**
 
     - `loss`, `optimiser`, `multistart`, `relative_errors`: the settings (``True`` for
       :class:`RelativeErrors` with its defaults, ``False``/``None`` for none).
-    - `warn`: warn (DeprecationWarning) when old keywords are used.
-    - `legacy`: old keywords (see :data:`LEGACY_KEYWORDS`); each overrides its setting.
 
     **Returns:** the :class:`FitSettings`.
     """
-    unknown = sorted(set(legacy) - set(LEGACY_KEYWORDS))
-    if unknown:
-        raise TypeError(f"unexpected keyword argument(s) {', '.join(unknown)}")
     optimiser = optimiser if optimiser is not None else Optimiser()
     multistart = multistart if multistart is not None else MultiStart()
-    if legacy and warn:
-        warnings.warn(f"the keyword(s) {', '.join(sorted(legacy))} are deprecated; pass "
-                      "optimiser=Optimiser(...), multistart=MultiStart(...) or "
-                      "relative_errors=RelativeErrors(...)", DeprecationWarning, stacklevel=3)
-    changes: dict[str, dict[str, Any]] = {"optimiser": {}, "multistart": {}}
-    for key, value in legacy.items():
-        group, name = LEGACY_KEYWORDS[key]
-        if group == "relative_errors":
-            relative_errors = value
-        else:
-            changes[group][name] = value
-    if changes["optimiser"]:
-        optimiser = Optimiser(**{**_fields(optimiser), **changes["optimiser"]})
-    if changes["multistart"]:
-        multistart = MultiStart(**{**_fields(multistart), **changes["multistart"]})
     if relative_errors is True:
         relative_errors = RelativeErrors()
     elif relative_errors is False:
@@ -166,10 +131,6 @@ def with_error_model(settings: FitSettings,
         relative_errors=errors if isinstance(errors, RelativeErrors) else None,
         combined_errors=errors if isinstance(errors, CombinedErrors) else None,
         counting_errors=errors if isinstance(errors, CountingErrors) else None)
-
-
-def _fields(module) -> dict[str, Any]:
-    return {f.name: getattr(module, f.name) for f in dataclasses.fields(module)}
 
 
 def merge_parameters(model: Model, params, curve: Curve | None) -> Parameters:
@@ -263,7 +224,7 @@ def _result(prepared: Prepared, layout: Layout, options: SolverPlan, out: dict,
             wall_time: float, compile_time: float, settings: FitSettings) -> FitResult:
     curve, merged, weights = prepared.curve, prepared.params, prepared.weights
     # Distinct starts (fit_many pads a batch of curves to a common number of starts).
-    n_starts = len(np.unique(prepared.starts, axis=0))
+    n_starts = len({tuple(row) for row in prepared.starts.tolist()})
     out = {k: np.asarray(v) for k, v in out.items()}
     residual = out["predicted"] - curve.value
     n_points = int(np.count_nonzero(weights))
@@ -329,7 +290,6 @@ def fit(
     multistart: MultiStart | None = None,
     relative_errors: RelativeErrors | bool | None = None,
     errors: str | RelativeErrors | CombinedErrors | None = None,
-    **legacy: Any,
 ) -> FitResult:
     """Fit a residence-time model to one curve by gradient descent; see the module docstring.
 
@@ -356,15 +316,12 @@ def fit(
       `relative_errors`) or ``"combined"`` (additive plus proportional, both estimated;
       :class:`~fitting.losses.CombinedErrors`); or the settings of the last two. Not
       combined with `weights`.
-    - `legacy`: the keywords of earlier releases (``n_starts``, ``seed``, ``method``,
-      ``max_steps``, ``tol``, ``ftol``, ``xtol``, ``warmup_steps``, ``learning_rate``);
-      deprecated.
 
     **Returns:**
 
     A :class:`~fitting.result.FitResult`; its `error_model` holds the error sizes.
     """
-    settings = settings_from_keywords(loss, optimiser, multistart, relative_errors, **legacy)
+    settings = settings_from_keywords(loss, optimiser, multistart, relative_errors)
     settings = with_error_model(settings, errors)
     return _fit_one(model, data, params, weights, settings)
 
@@ -399,7 +356,6 @@ def fit_many(
     multistart: MultiStart | None = None,
     relative_errors: RelativeErrors | bool | None = None,
     errors: str | RelativeErrors | CombinedErrors | None = None,
-    **legacy: Any,
 ) -> list[FitResult]:
     """Fit one model to many curves in a single vmapped, jitted call.
 
@@ -409,7 +365,7 @@ def fit_many(
 
     **Arguments:**
 
-    - `model`, `loss`, `optimiser`, `multistart`, `relative_errors`, `errors`, `legacy`: as
+    - `model`, `loss`, `optimiser`, `multistart`, `relative_errors`, `errors`: as
       in :func:`fit` (curve i uses seed ``seed + i``); relative-error passes are one vmapped
       call each.
     - `params`: as in :func:`fit`, for all curves, or a list with one setting per curve.
@@ -421,7 +377,7 @@ def fit_many(
     One :class:`~fitting.result.FitResult` per curve, in order; `wall_time` is each curve's
     share of the call.
     """
-    settings = settings_from_keywords(loss, optimiser, multistart, relative_errors, **legacy)
+    settings = settings_from_keywords(loss, optimiser, multistart, relative_errors)
     settings = with_error_model(settings, errors)
     return _fit_final(model, curves, params, weights, settings)
 
