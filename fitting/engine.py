@@ -185,6 +185,18 @@ def _record(carry, to_free, size):
     }
 
 
+#: What a finished run's record holds only until it is checked: Levenberg–Marquardt's scaled
+#: residuals and Jacobian (two more curve-long arrays).
+_CHECK_ONLY = ("scaled_residual", "scaled_jacobian")
+#: The curve-long arrays of a record (the model's values and Jacobian at the run's end).
+_CURVES = ("predicted", "jacobian")
+
+
+def _without(record: dict, names) -> dict:
+    """`record` without the entries `names`."""
+    return {k: v for k, v in record.items() if k not in names}
+
+
 def _checked(record: dict, options: SolverPlan):
     """Status after the Gauss–Newton check and that step's length, and whether the
     multi-start solver would polish here (JAX; as :meth:`fitting.solve.MultiStartSolver.
@@ -325,15 +337,24 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
 
         size = loss_size(weights)
         probe = _record(lm_initial(starts[0], empty), to_free, size)
-        blank = jax.tree.map(jnp.zeros_like, probe)
+        blank = jax.tree.map(jnp.zeros_like, _without(probe, _CHECK_ONLY))
+        # Curve-long arrays are kept once each: the best start's model values and Jacobian
+        # (its check done when it ended; after the starts it is the first fit), and the
+        # running fit's in "lm" (at the end, those of the last pass). A finished pass keeps
+        # only its numbers.
         state = {
             "lm": lm_initial(starts[0], empty), "phase": jnp.asarray(0),
             "w": weights, "size": size, "done": ~active,
-            "best": {**blank, "scaled_loss": jnp.asarray(jnp.inf)},
+            "best": {**blank, "scaled_loss": jnp.asarray(jnp.inf),
+                     # The check of that blank record (zero arrays: one row says the same).
+                     "checked": _checked({"status": blank["status"],
+                                          "scaled_jacobian": jnp.zeros((1, n_free)),
+                                          "scaled_residual": jnp.zeros(1),
+                                          "scaled_loss": jnp.asarray(jnp.inf)}, options)},
             "start_losses": jnp.full(count_starts, jnp.nan),
             "start_evaluations": jnp.asarray(0),
-            "first": blank, "first_status": jnp.asarray(0), "first_step": jnp.asarray(0.0),
-            "polish_first": jnp.asarray(False), "final": blank,
+            "first_status": jnp.asarray(0), "first_step": jnp.asarray(0.0),
+            "polish_first": jnp.asarray(False), "final": _without(blank, _CURVES),
             "final_status": jnp.asarray(0), "final_step": jnp.asarray(0.0),
             "final_w": weights, "polish_passes": jnp.asarray(False),
             "passes": jnp.asarray(1), "sizes": jnp.zeros(2), "evaluations": jnp.asarray(0),
@@ -349,20 +370,24 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
         def transition(state, lm):
             ended = jnp.asarray(True)
             record = _record(lm, to_free, state["size"])
+            checked = _checked(record, options)
+            record = _without(record, _CHECK_ONLY)
             phase = state["phase"]
             in_starts = phase < count_starts
             # A start ended: keep it if it is the best so far (the first of equal losses).
             value = record["scaled_loss"]
             better = jnp.isfinite(value) & (value < state["best"]["scaled_loss"])
-            best = jax.tree.map(lambda a, b: jnp.where(better, a, b), record, state["best"])
+            best = jax.tree.map(lambda a, b: jnp.where(better, a, b),
+                                {**record, "checked": checked}, state["best"])
             start_losses = state["start_losses"].at[jnp.minimum(phase, count_starts - 1)].set(
                 value * state["size"])
             start_evaluations = state["start_evaluations"] + record["evaluations"] + (
                 warm_evaluations[jnp.minimum(phase, count_starts - 1)])
             last_start = phase == count_starts - 1
             # The first fit (after its last start), or the pass that just ended.
-            finished = jax.tree.map(lambda a, b: jnp.where(in_starts, a, b), best, record)
-            status, step, polish = _checked(finished, options)
+            finished = jax.tree.map(lambda a, b: jnp.where(in_starts, a, b), best,
+                                    {**record, "checked": checked})
+            status, step, polish = finished.pop("checked")
             if errors.kind == "absolute":
                 w_next, sizes_next, go = state["w"], jnp.zeros(2), jnp.asarray(False)
             else:
@@ -406,11 +431,10 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
                                           state["start_losses"]),
                 "start_evaluations": jnp.where(ended & in_starts, start_evaluations,
                                                state["start_evaluations"]),
-                "first": pick(first_done, finished, state["first"]),
                 "first_status": jnp.where(first_done, status, state["first_status"]),
                 "first_step": jnp.where(first_done, step, state["first_step"]),
                 "polish_first": jnp.where(first_done, polish, state["polish_first"]),
-                "final": pick(finishing, finished, state["final"]),
+                "final": pick(finishing, _without(finished, _CURVES), state["final"]),
                 "final_status": jnp.where(finishing, status, state["final_status"]),
                 "final_step": jnp.where(finishing, step, state["final_step"]),
                 "final_w": jnp.where(finishing, state["w"], state["final_w"]),
@@ -422,7 +446,15 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
             }
 
         state = jax.lax.while_loop(lambda s: ~s["done"], body, state)
-        first, final = state["first"], state["final"]
+        # After the starts the best start is the first fit. The final fit's model values and
+        # Jacobian are the last pass's, still in "lm" (the loop ends with that run), or,
+        # without a pass, the first fit's.
+        first = _without(state["best"], ("checked",))
+        _, _, _, (predicted, physical), *_ = state["lm"]
+        later = state["passes"] > 1
+        final = {**state["final"],
+                 "predicted": jnp.where(later, predicted, first["predicted"]),
+                 "jacobian": jnp.where(later, physical, first["jacobian"])}
 
         def finish(record, status, step):
             out = {k: record[k] for k in ("free_values", "predicted", "jacobian",
