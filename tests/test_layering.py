@@ -54,6 +54,15 @@ FITTING_LAYERS = (
     "fitting.fit",
     "fitting.diagnostics",
     "fitting.gridsearch",
+    "fitting.study.global_fit.law",  # the global fit, one concept a module, then its face
+    "fitting.study.global_fit.model",
+    "fitting.study.global_fit.joint",
+    "fitting.study.global_fit.problem",
+    "fitting.study.global_fit.estimate",
+    "fitting.study.global_fit.result",
+    "fitting.study.global_fit.propagation",
+    "fitting.study.global_fit.solver",
+    "fitting.study.global_fit",
     "fitting.study",
     "fitting.report",
     "fitting.study.batch",  # renders each curve through fitting.report
