@@ -13,13 +13,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from axialmix.network import four_compartment_chain_transport
 from fitting.fit import fit_many, prepare
 from fitting.optima import OtherOptimum, other_optima
 from fitting.residuals import LACK_OF_FIT_LEVEL, LackOfFit, lack_of_fit_test
@@ -42,7 +40,6 @@ __all__ = [
     "ModelComparison",
     "Profile",
     "compare_models",
-    "equivalent_dispersion",
     "identifiability",
     "lack_of_fit",
     "other_optima",
@@ -741,32 +738,3 @@ def compare_models(results: Sequence[FitResult]) -> ModelComparison:
     best, close, text = _recommend(names, k, aicc, compared, systematic, converged)
     return ModelComparison(results, tuple(names), k, log_l, aicc, bic, delta, weights,
                            compared, systematic, best, close, text)
-
-
-def equivalent_dispersion(result: FitResult, length: float = 1.0) -> dict:
-    """Deprecated: the axial dispersion model equivalent to a fitted four-compartment network.
-
-    Use ``result.equivalent_adm(length)`` (the model's hook, computed by
-    :func:`axialmix.network.moment_matched_adm`) and
-    :func:`axialmix.network.four_compartment_chain_transport`. Kept one release.
-
-    **Arguments:** `result`: a four-compartment fit; `length`: blender length ``L`` (m).
-
-    **Returns:** ``{"moments": {tau, variance, peclet, velocity, axial_dispersion},
-    "chain": {velocity, axial_dispersion, peclet}}`` (the curve's time unit; SI for v, D_z).
-    """
-    warnings.warn("equivalent_dispersion is deprecated; use FitResult.equivalent_adm(length) "
-                  "and axialmix.network.four_compartment_chain_transport",
-                  DeprecationWarning, stacklevel=2)
-    if set(result.model.parameter_names) != {"k_f", "k_r", "k_s", "k_out"}:
-        raise ValueError("equivalent_dispersion needs a four-compartment fit")
-    record = result.equivalent_adm(length)
-    unit = result.curve.time_unit
-    v = result.values
-    velocity, dispersion, peclet = four_compartment_chain_transport(v["k_f"], v["k_r"], length)
-    return {
-        "moments": {"tau": record[f"tau_{unit}"], "variance": record[f"variance_{unit}2"],
-                    "peclet": record["peclet"], "velocity": record["velocity_m_per_s"],
-                    "axial_dispersion": record["dispersion_m2_per_s"]},
-        "chain": {"velocity": velocity, "axial_dispersion": dispersion, "peclet": peclet},
-    }

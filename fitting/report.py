@@ -8,7 +8,7 @@ and a two-panel PNG (data and fitted curve; residuals). Files are written by
 :mod:`axialmix._files` (a temporary file moved into place), so an interrupted run never
 leaves a half-written file. Nothing here computes physics: the equivalent ADM comes from the
 model's hook (:meth:`fitting.result.FitResult.equivalent_adm`), its uncertainty from
-:func:`fitting.physical.physical_quantities`, Pe from moments from :mod:`axialmix.analytic`.
+:func:`fitting.physical.physical_quantities`.
 
 Every number carries its unit: parameters in tables as ``tau (min)``, in JSON with a
 ``unit`` field; physical quantities with the unit in their key (``dispersion_m2_per_s``,
@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 import textwrap
-import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -29,12 +28,10 @@ import numpy as np
 
 from axialmix._files import write_atomic, write_csv, write_json
 from axialmix.adm import error_estimate as _fv_error_estimate
-from axialmix.analytic import peclet_from_variance_ratio as _peclet_from_variance_ratio
 from fitting.diagnostics import ModelComparison, identifiability, other_optima
 from fitting.drawing import FigureSpec, draw
 from fitting.gridsearch import GridResult
 from fitting.measurement import MEASUREMENT_PARAMETERS, MeasuredModel
-from fitting.models import get_model
 from fitting.physical import physical_quantities, quantity_column, quantity_unit
 from fitting.residuals import COUNTS_PER_MERGED_BIN, merged_counts
 from fitting.result import FitResult
@@ -217,56 +214,6 @@ def _bracket(interval) -> str:
     low, high = interval
     return (f"[{-math.inf if low is None else low:.4g}, "
             f"{math.inf if high is None else high:.4g}]")
-
-
-def peclet_from_variance_ratio(variance_ratio: float) -> float:
-    """Deprecated: use :func:`axialmix.analytic.peclet_from_variance_ratio` (kept one release).
-
-    **Arguments:** `variance_ratio`: ``sigma² / tau²``.
-
-    **Returns:** Pe (NaN outside (0, 1)).
-    """
-    warnings.warn("fitting.report.peclet_from_variance_ratio is deprecated; use "
-                  "axialmix.analytic.peclet_from_variance_ratio", DeprecationWarning,
-                  stacklevel=2)
-    return float(_peclet_from_variance_ratio(variance_ratio))
-
-
-def network_moments(model_name: str, values: Mapping[str, float]) -> tuple[float, float] | None:
-    """Deprecated: use :meth:`fitting.result.FitResult.equivalent_adm` (kept one release).
-
-    **Returns:** ``(mean, variance)`` of a model with an equivalent-ADM hook that reports
-    them (networks), in the time unit of its rates, else ``None``.
-    """
-    warnings.warn("network_moments is deprecated; use FitResult.equivalent_adm",
-                  DeprecationWarning, stacklevel=2)
-    model = get_model(model_name)
-    record = None if model.equivalent_adm is None else model.equivalent_adm(values, None, "s")
-    if record is None or "variance_s2" not in record:
-        return None
-    return record["tau_s"], record["variance_s2"]
-
-
-def equivalent_dispersion(mean: float, variance: float,
-                          length_m: float | None = None) -> dict[str, float | None]:
-    """Deprecated: the closed–closed ADM with a given mean (s) and variance (s²).
-
-    Use :func:`axialmix.network.moment_matched_adm` or :meth:`FitResult.equivalent_adm`.
-    There is no default length any more: without `length_m`, v and D_z are ``None``.
-
-    **Returns:** ``{"tau_s", "peclet", "velocity_m_per_s", "dispersion_m2_per_s",
-    "length_m"}``.
-    """
-    warnings.warn("fitting.report.equivalent_dispersion is deprecated; use "
-                  "FitResult.equivalent_adm(length)", DeprecationWarning, stacklevel=2)
-    peclet = float(_peclet_from_variance_ratio(variance / mean**2)) if mean > 0 else math.nan
-    velocity = dispersion = None
-    if length_m is not None and mean > 0:
-        velocity = length_m / mean
-        dispersion = length_m**2 / (mean * peclet) if peclet > 0 else math.nan
-    return {"tau_s": _finite(mean), "peclet": _finite(peclet),
-            "velocity_m_per_s": _finite(velocity), "dispersion_m2_per_s": _finite(dispersion),
-            "length_m": length_m}
 
 
 # --- tables and records -------------------------------------------------------------------------

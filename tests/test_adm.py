@@ -273,11 +273,12 @@ def test_fit_with_the_finite_volume_model_recovers_exact_parameters():
     # default resolution dispatch must work there. Noise-free data from the exact solution;
     # the FV solver's own error (< 1e-3 of the peak) bounds the parameter error.
     from fitting.fit import fit
+    from fitting.solve import Optimiser
 
     t = np.linspace(2.0, 120.0, 30)
     observed = np.asarray(exit_age_closed(t, 40.0, 25.0))
     # L-BFGS: Levenberg-Marquardt on the FV model's gradients crawls here (status SLOW).
-    result = fit("adm-fv", (t, observed), method="lbfgs")
+    result = fit("adm-fv", (t, observed), optimiser=Optimiser(method="lbfgs"))
     assert result.converged, result.message
     assert result.values["tau"] == pytest.approx(40.0, rel=1e-3)
     assert result.values["peclet"] == pytest.approx(25.0, rel=1e-2)

@@ -17,6 +17,7 @@ from fitting.fit import fit, fit_many
 from fitting.losses import mean_absolute_error, sum_of_squares
 from fitting.models import MODELS, custom_model, get_model
 from fitting.parameters import Parameter, Parameters
+from fitting.solve import MultiStart, Optimiser
 from fitting.uncertainty import effective_degrees_of_freedom
 
 TAU = 10.0
@@ -46,10 +47,11 @@ def _poor_cases(model_name):
 @pytest.fixture(scope="module")
 def adm_single_start():
     """One batched L-BFGS call, one start each: moment starts for every Pe, then every 10x-off
-    start on its own (``n_starts=1``: no moment-estimate rescue)."""
+    start on its own (``MultiStart(n_starts=1)``: no moment-estimate rescue)."""
     moment_cases = [(_curve("adm", pe), None, pe) for pe in PECLETS]
     cases = moment_cases + _poor_cases("adm")
-    results = fit_many("adm", [c for c, _, _ in cases], [s for _, s, _ in cases], n_starts=1)
+    results = fit_many("adm", [c for c, _, _ in cases], [s for _, s, _ in cases],
+                       multistart=MultiStart(n_starts=1))
     return cases, results
 
 
@@ -233,7 +235,7 @@ def test_adam_on_the_mean_absolute_error_finds_the_exponential_time_constant():
                          {"tau": Parameter(1.0, min=0.0)})
     time = np.linspace(0.0, 30.0, 40)
     result = fit(model, (time, np.exp(-time / 7.0) / 7.0), {"tau": 2.0}, loss="mae",
-                 method="adam", max_steps=3000)
+                 optimiser=Optimiser(method="adam", max_steps=3000))
     # Adam at a fixed step size ends in a small oscillation around the optimum of the
     # non-smooth MAE, hence the 1e-3 tolerance; the best point visited is returned.
     assert result.values["tau"] == pytest.approx(7.0, rel=1e-3)
@@ -289,7 +291,7 @@ def test_relative_errors_fit_is_weighted_by_its_own_model_curve():
         np.testing.assert_allclose(result.weights, 1 / size**2, rtol=1e-6)
         again = fit("adm", curve, {"tau": result.values["tau"],
                                    "peclet": result.values["peclet"]},
-                    weights=result.weights, n_starts=1)
+                    weights=result.weights, multistart=MultiStart(n_starts=1))
         # Its standard errors differ only by the degrees of freedom: three of the 15 points
         # (0.1 tau and the last tail points) lie below the weight floor, hold little
         # residual and are not counted as whole degrees of freedom.

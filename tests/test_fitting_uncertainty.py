@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from axialmix.network import four_compartment_exit_age
+from axialmix.network import four_compartment_chain_transport, four_compartment_exit_age
 from fitting.diagnostics import (
-    equivalent_dispersion,
     identifiability,
     profile_intervals,
     profile_likelihood,
@@ -371,14 +370,13 @@ def test_four_compartment_with_k_r_free_leaves_a_combination_undetermined():
     assert diagnosis.poorly_determined != ()
 
 
-def test_equivalent_dispersion_of_a_four_compartment_fit(four_compartment_tied):
+def test_equivalent_adm_and_axial_chain_of_a_four_compartment_fit(four_compartment_tied):
     tied = four_compartment_tied
-    with pytest.warns(DeprecationWarning, match="equivalent_adm"):
-        equivalent = equivalent_dispersion(tied, length=0.31)
     k_f, k_r = tied.values["k_f"], tied.values["k_r"]
-    assert equivalent["chain"]["velocity"] == pytest.approx((k_f - k_r) * 0.31 / 2, abs=1e-15)
-    assert equivalent["chain"]["axial_dispersion"] == pytest.approx((k_f + k_r) * 0.31**2 / 8)
-    assert equivalent["moments"]["tau"] > 0
+    velocity, dispersion, _ = four_compartment_chain_transport(k_f, k_r, 0.31)
+    assert velocity == pytest.approx((k_f - k_r) * 0.31 / 2, abs=1e-15)
+    assert dispersion == pytest.approx((k_f + k_r) * 0.31**2 / 8)
+    assert tied.equivalent_adm(0.31)[f"tau_{tied.curve.time_unit}"] > 0
 
 
 def test_fit_many_pads_curves_of_different_lengths_with_zero_weights(linear_fits):

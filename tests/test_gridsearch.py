@@ -15,6 +15,7 @@ from fitting.fit import fit
 from fitting.gridsearch import grid_search, source_flux_grid
 from fitting.models import custom_model, four_compartment
 from fitting.parameters import Parameter
+from fitting.solve import MultiStart
 
 
 def _gamma_exit_age(t, p):
@@ -168,7 +169,8 @@ def test_gradient_fit_beats_source_grid_with_40_times_fewer_evaluations():
     for curve in curves:
         best = grid_search(four_compartment, curve, dict.fromkeys(("k_f", "k_r", "k_s"), grid),
                            loss="sse", fixed={"k_out": K_OUT}, progress=False)
-        fitted = fit(four_compartment, curve, held, loss="sse", n_starts=3, warmup_steps=0)
+        fitted = fit(four_compartment, curve, held, loss="sse",
+                     multistart=MultiStart(n_starts=3, warmup_steps=0))
         assert best.n_evaluations == 9261
         assert fitted.loss <= best.loss, curve.name
         assert 40 * fitted.n_evaluations <= best.n_evaluations, curve.name

@@ -5,16 +5,15 @@ import math
 import numpy as np
 import pytest
 
-from axialmix.analytic import exit_age_closed, variance_ratio_closed
+from axialmix.analytic import exit_age_closed, peclet_from_variance_ratio, variance_ratio_closed
 from axialmix.network import (
     adm_chain,
     backflow_chain_rates,
     backflow_chain_transport,
-    equivalent_adm,
     exit_age,
     four_compartment,
     four_compartment_chain_transport,
-    peclet_from_variance_ratio,
+    moment_matched_adm,
     residence_time_moments,
     tanks_in_series,
 )
@@ -82,8 +81,8 @@ def test_transport_formulas_invert_the_chain_rates():
         backflow_chain_rates(0.2, 2.5e-3, 0.05)
 
 
-def test_equivalent_adm_recovers_peclet_of_a_fine_chain():
-    report = equivalent_adm(adm_chain(30.0, 20.0, 80), length=0.31)
+def test_moment_matched_adm_recovers_peclet_of_a_fine_chain():
+    report = moment_matched_adm(adm_chain(30.0, 20.0, 80), 0.31)
     assert report.mean_residence_time == pytest.approx(30.0, rel=1e-12)
     assert report.peclet == pytest.approx(20.0, rel=2e-3)
     assert report.velocity == pytest.approx(0.31 / 30.0)
@@ -92,14 +91,14 @@ def test_equivalent_adm_recovers_peclet_of_a_fine_chain():
 
 @pytest.mark.parametrize("peclet", [1e-3, 0.5, 7.5, 300.0, 5e4])
 def test_peclet_from_variance_ratio_inverts_the_closed_closed_formula(peclet):
-    assert peclet_from_variance_ratio(float(variance_ratio_closed(peclet))) == pytest.approx(
-        peclet, rel=1e-6)
+    ratio = float(variance_ratio_closed(peclet))
+    assert float(peclet_from_variance_ratio(ratio)) == pytest.approx(peclet, rel=1e-6)
 
 
 def test_peclet_from_variance_ratio_is_nan_beyond_a_stirred_tank():
-    assert math.isnan(peclet_from_variance_ratio(1.2))
+    assert math.isnan(float(peclet_from_variance_ratio(1.2)))
     # A single stirred tank has ratio exactly 1: the Pe -> 0 limit, not a finite Pe.
-    assert math.isnan(equivalent_adm(tanks_in_series(1, 5.0)).peclet)
+    assert math.isnan(moment_matched_adm(tanks_in_series(1, 5.0), None).peclet)
 
 
 def test_four_compartment_axial_chain_reading():
@@ -110,13 +109,12 @@ def test_four_compartment_axial_chain_reading():
     # The source's fits have k_f = k_r: the chain reading has no convection ...
     assert four_compartment_chain_transport(2.125, 2.125)[0] == 0.0
     # ... while the RTD of the network still has a finite moment-matched Pe.
-    report = equivalent_adm(four_compartment(2.125, 2.125, 0.625, 1.0))
+    report = moment_matched_adm(four_compartment(2.125, 2.125, 0.625, 1.0), None)
     assert 0 < report.peclet < 10
 
 
 def test_moment_matched_adm_reports_si_velocity_and_dispersion_in_any_time_unit():
     import axialmix.analytic as analytic
-    from axialmix.network import moment_matched_adm
 
     network = four_compartment(2.125, 2.125, 0.625, 1.0)
     moments = residence_time_moments(network)
@@ -146,22 +144,5 @@ def test_moment_matched_adm_reports_si_velocity_and_dispersion_in_any_time_unit(
                                                     "time_unit must be one of")],
 )
 def test_moment_matched_adm_rejects_nonsense(kwargs, message):
-    from axialmix.network import moment_matched_adm
-
     with pytest.raises(ValueError, match=message):
         moment_matched_adm(tanks_in_series(3, 5.0), **kwargs)
-
-
-def test_renamed_equivalent_adm_and_peclet_warn_and_agree_with_the_new_names():
-    import axialmix.analytic as analytic
-    from axialmix.network import moment_matched_adm
-
-    network = adm_chain(30.0, 20.0, 40)
-    with pytest.warns(DeprecationWarning, match="moment_matched_adm"):
-        old = equivalent_adm(network, length=0.31)
-    new = moment_matched_adm(network, 0.31)
-    assert (old.peclet, old.velocity, old.axial_dispersion) == (
-        new.peclet, new.velocity, new.axial_dispersion)
-    with pytest.warns(DeprecationWarning, match="axialmix.analytic.peclet_from_variance_ratio"):
-        value = peclet_from_variance_ratio(0.25)
-    assert value == float(analytic.peclet_from_variance_ratio(0.25))

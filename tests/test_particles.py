@@ -64,7 +64,7 @@ def _v_blender_prediction(network: particles.ParticleNetwork, initial, steps) ->
 
 
 def test_v_blender_mean_counts_match_markov_prediction_over_20_seeds():
-    network = particles.v_blender()  # 1,000,000 particles, 1000/100/100/1000 per step
+    network = particles.particle_v_blender()  # 1,000,000 particles, 1000/100/100/1000 per step
     initial = particles.v_blender_loading(network, "E")
     report = [1000, 3000, 10_000, 30_000]
     runs = np.array(
@@ -93,7 +93,7 @@ def test_v_blender_mean_counts_match_markov_prediction_over_20_seeds():
 
 def _small_v_blender() -> tuple[particles.ParticleNetwork, np.ndarray]:
     # The V-blender scaled down 100 times: same fractions moved per step.
-    network = particles.v_blender(10_000, exchanges=(10, 1, 1, 10))
+    network = particles.particle_v_blender(10_000, exchanges=(10, 1, 1, 10))
     return network, particles.v_blender_loading(network, "E")
 
 
@@ -157,7 +157,7 @@ def _tracer_run(engine: str, seed: int = 3):
     # 100,000 particles and 30,000 tracers: enough to tell any of the four rates changed by
     # 20 % (with 3,000 tracers a 20 % change of k_f, k_r or k_s goes unnoticed: the RTD
     # barely depends on them, the source's identifiability problem).
-    network = particles.four_compartment(particles=100_000)
+    network = particles.particle_four_compartment(particles=100_000)
     steps = 9000  # 14 mean residence times (625 steps): 1e-6 of the tracer is left
     feed = particles.constant_feed(network, [1.0, 0.0], steps)
     initial = np.column_stack([network.holdups, np.zeros(4, np.int64)])
@@ -240,7 +240,7 @@ def test_equilibrium_sample_variance_matches_hypergeometric_prediction():
     # A small, fast-mixing batch chain (5 x 1000 particles) run far past mixing: the
     # stationary state is a uniformly random arrangement, so an m-particle sample from a
     # compartment is an m-subset of all 5000 particles: hypergeometric(5000, 2500, m).
-    network = particles.v_blender(5000, exchanges=(200, 100, 100, 200))
+    network = particles.particle_v_blender(5000, exchanges=(200, 100, 100, 200))
     initial = np.array([[1000, 0], [1000, 0], [500, 500], [0, 1000], [0, 1000]])
     finals = [particles.simulate(network, initial, 1500, seed=s).final_counts for s in range(600)]
     for m in (2, 20, 200):
@@ -277,7 +277,7 @@ def test_batch_run_conserves_particles_at_every_step(engine):
 
 @pytest.mark.parametrize("engine", ENGINES)
 def test_continuous_run_balances_feed_outflow_and_holdup_at_every_step(engine):
-    network = particles.axial_radial_grid(6, 3)
+    network = particles.particle_axial_radial_grid(6, 3)
     steps = 600
     feed = particles.feeder_feed(network, [12.16, 6.55], [2.46, 1.16], steps, seed=1)
     initial = np.column_stack([network.holdups, np.zeros(network.n_compartments, np.int64)])
@@ -342,7 +342,7 @@ def test_identity_history_adds_up_to_each_tracer_residence_time(identity_tracer_
 
 
 def test_particle_network_step_matrix_matches_network_model():
-    network = particles.four_compartment()
+    network = particles.particle_four_compartment()
     expected = np.asarray(mean_field.step_matrix(network.to_network()))
     np.testing.assert_allclose(network.step_matrix(), expected, rtol=0, atol=1e-15)
     assert np.all(network.moves == np.rint(network.moves))
@@ -392,7 +392,7 @@ def test_identity_engine_generator_matches_reference_xoshiro256starstar():
 
 
 def test_constant_feed_is_exact_and_feeder_feed_follows_feeder_rates():
-    network = particles.axial_radial_grid(4, 3)  # 3 inlets, 1 particle each per step
+    network = particles.particle_axial_radial_grid(4, 3)  # 3 inlets, 1 particle each per step
     feed = particles.constant_feed(network, [0.7, 0.3], 1000)
     assert feed.shape == (1000, 3, 2) and np.all(feed.sum(axis=2) == 1)
     assert np.all(np.abs(feed.sum(axis=0)[:, 1] - 300) <= 1)  # running share within 1 particle
@@ -426,19 +426,3 @@ def test_identity_history_first_stay_in_inlet_is_geometric(identity_tracer_run):
     k = np.arange(1, top)
     expected = np.append(leave * (1 - leave) ** (k - 1), (1 - leave) ** (top - 1)) * stays.size
     assert _chi_square_p_value(observed, expected) > 1e-3
-
-
-@pytest.mark.parametrize(
-    ("old", "new", "arguments"),
-    [
-        ("v_blender", "particle_v_blender", (10_000,)),
-        ("four_compartment", "particle_four_compartment", ()),
-        ("axial_radial_grid", "particle_axial_radial_grid", (4, 2)),
-    ],
-)
-def test_old_particle_preset_names_warn_and_build_the_same_network(old, new, arguments):
-    with pytest.warns(DeprecationWarning, match=f"axialmix.particles.{new}"):
-        aliased = getattr(particles, old)(*arguments)
-    built = getattr(particles, new)(*arguments)
-    assert aliased.to_network() == built.to_network()
-    assert np.array_equal(aliased.holdups, built.holdups)

@@ -42,7 +42,7 @@ def test_simulate_vblender_writes_counts_and_chi_square_for_each_report(tmp_path
     for row, counts_row in zip(data["reports"], counts, strict=True):
         assert row["chi_square"] == pytest.approx(np.sum((counts_row - expected) ** 2 / expected))
     # the same run through the library gives the same numbers (seeded)
-    network = particles.v_blender()
+    network = particles.particle_v_blender()
     again = particles.simulate(
         network, particles.v_blender_loading(network, "E"), 3000, seed=1, report_every=1000
     )
@@ -73,7 +73,7 @@ def test_simulate_continuous_writes_rtd_close_to_network_mean(tmp_path):
     data = json.loads(path.read_text())
     rtd = data["rtd"]
     assert rtd["fraction_left"] == pytest.approx(1.0, abs=1e-3)
-    reference = particles.four_compartment().to_network()
+    reference = particles.particle_four_compartment().to_network()
     exact = float(mean_field.residence_time_moments(reference).mean)
     # 1,676 tracers, RTD standard deviation ~ mean: 3 standard errors is about 7 %.
     assert rtd["mean_residence_time_s"] == pytest.approx(exact, rel=0.08)

@@ -63,7 +63,7 @@ def test_chi_square_of_a_mixed_v_blender_follows_its_distribution_and_not_before
     # Perfectly mixed, the arrangement of the particles is uniformly random, so chi-square
     # has the distribution of chi-square over random arrangements (drawn here by shuffling).
     # Before mixing completes its distribution is different (the source's observation).
-    network = particles.v_blender(5000, exchanges=(200, 100, 100, 200))
+    network = particles.particle_v_blender(5000, exchanges=(200, 100, 100, 200))
     initial = particles.v_blender_loading(network, "E")
     runs = [
         particles.simulate(network, initial, 1500, seed=s, report_steps=[60]) for s in range(300)

@@ -405,13 +405,3 @@ def test_read_trajectories_rejects_bad_file_with_one_line_message(tmp_path, text
     if "no data rows" not in problem:
         assert f"row {row}" in message
     assert problem in message
-
-
-def test_peclet_number_is_a_deprecated_alias_of_peclet_from_physical():
-    from axialmix.analytic import peclet_from_physical
-    from axialmix.trajectories import peclet_number
-
-    with pytest.warns(DeprecationWarning, match="peclet_from_physical"):
-        value = peclet_number(2e-3, 0.31, 5e-5)  # (v, L, D_z), its old order
-    assert value == pytest.approx(2e-3 * 0.31 / 5e-5, rel=1e-15)
-    assert value == float(peclet_from_physical(2e-3, 5e-5, 0.31))

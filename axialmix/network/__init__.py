@@ -4,9 +4,6 @@ The description (:class:`CompartmentNetwork`) is plain, immutable and validated;
 are JAX functions of its rates, differentiable and jit/vmap clean. The equivalent
 axial dispersion model of a network is :func:`moment_matched_adm`; the four-compartment
 structure is defined once (:data:`FOUR_COMPARTMENT_CONNECTIONS`).
-
-Deprecated for one release: :func:`equivalent_adm` (use :func:`moment_matched_adm`) and
-:func:`peclet_from_variance_ratio` (use :func:`axialmix.analytic.peclet_from_variance_ratio`).
 """
 
 from ._chain import (
@@ -18,13 +15,10 @@ from ._chain import (
 from ._description import CompartmentNetwork, Connection, Inlet, Outlet
 from ._equivalent import (
     TIME_UNITS,
-    EquivalentADM,
     MomentMatchedADM,
-    equivalent_adm,
     four_compartment_chain_transport,
     moment_matched_adm,
     moment_matched_adm_from_moments,
-    peclet_from_variance_ratio,
 )
 from ._four_compartment import (
     FOUR_COMPARTMENT_CONNECTIONS,
@@ -65,7 +59,6 @@ from ._timevarying import (
 __all__ = [
     "CompartmentNetwork",
     "Connection",
-    "EquivalentADM",
     "FOUR_COMPARTMENTS",
     "FOUR_COMPARTMENT_CONNECTIONS",
     "FOUR_COMPARTMENT_INLET",
@@ -87,7 +80,6 @@ __all__ = [
     "chain_peclet",
     "compartment_amounts",
     "cumulative_exit_age",
-    "equivalent_adm",
     "exit_age",
     "four_compartment",
     "four_compartment_chain_transport",
@@ -98,7 +90,6 @@ __all__ = [
     "moment_matched_adm",
     "moment_matched_adm_from_moments",
     "outlet_response",
-    "peclet_from_variance_ratio",
     "residence_time_moments",
     "scheduled_amounts",
     "scheduled_exit_age",

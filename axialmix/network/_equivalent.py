@@ -21,12 +21,10 @@ Two readings, both documented because they answer different questions:
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import equinox as eqx
 from jax.typing import ArrayLike
 
-from .._deprecation import warn_deprecated
 from ..analytic.inverse import peclet_from_variance_ratio as _peclet_from_ratio
 from ._chain import backflow_chain_transport
 from ._description import CompartmentNetwork
@@ -34,12 +32,9 @@ from ._moments import residence_time_moments
 
 __all__ = [
     "TIME_UNITS",
-    "EquivalentADM",
     "MomentMatchedADM",
-    "equivalent_adm",
     "four_compartment_chain_transport",
     "moment_matched_adm",
-    "peclet_from_variance_ratio",
 ]
 
 TIME_UNITS = {"ms": 1e-3, "s": 1.0, "min": 60.0, "h": 3600.0}
@@ -157,59 +152,6 @@ def moment_matched_adm_from_moments(mean: float, variance: float, length: float 
         velocity=velocity,
         axial_dispersion=dispersion,
     )
-
-
-class EquivalentADM(NamedTuple):
-    """Result of the deprecated :func:`equivalent_adm` (use :func:`moment_matched_adm`)."""
-
-    mean_residence_time: float
-    """``tau`` (time units)."""
-    variance: float
-    """Variance of the residence time (time²)."""
-    variance_ratio: float
-    """``sigma² / tau²``."""
-    peclet: float
-    """``Pe`` (NaN when the variance ratio is not below 1)."""
-    velocity: float
-    """``v = L / tau`` (length / time)."""
-    axial_dispersion: float
-    """``D_z = v L / Pe`` (length² / time)."""
-
-
-def equivalent_adm(
-    network: CompartmentNetwork,
-    length: float = 1.0,
-    rates: ArrayLike | None = None,
-    outflow_rates: ArrayLike | None = None,
-) -> EquivalentADM:
-    """Deprecated: use :func:`moment_matched_adm` (an explicit length, SI units).
-
-    Kept for one release; ``v`` and ``D_z`` are in the network's units of time and length.
-    """
-    warn_deprecated(
-        "axialmix.network.equivalent_adm", "axialmix.network.moment_matched_adm"
-    )
-    report = moment_matched_adm(network, length, rates=rates, outflow_rates=outflow_rates)
-    return EquivalentADM(
-        report.mean_residence_time,
-        report.variance,
-        report.variance_ratio,
-        report.peclet,
-        report.velocity,
-        report.axial_dispersion,
-    )
-
-
-def peclet_from_variance_ratio(variance_ratio: float) -> float:
-    """Deprecated: use :func:`axialmix.analytic.peclet_from_variance_ratio`.
-
-    Kept for one release; returns a Python float (NaN outside (0, 1)).
-    """
-    warn_deprecated(
-        "axialmix.network.peclet_from_variance_ratio",
-        "axialmix.analytic.peclet_from_variance_ratio",
-    )
-    return float(_peclet_from_ratio(variance_ratio))
 
 
 def four_compartment_chain_transport(

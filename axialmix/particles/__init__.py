@@ -14,12 +14,9 @@ number of particles) and ``"identity"`` (individual particles, per-particle hist
 from axialmix.particles.description import ParticleNetwork
 from axialmix.particles.feed import check_feed_schedule, constant_feed, feeder_feed
 from axialmix.particles.presets import (
-    axial_radial_grid,
-    four_compartment,
     particle_axial_radial_grid,
     particle_four_compartment,
     particle_v_blender,
-    v_blender,
     v_blender_loading,
 )
 from axialmix.particles.sampling import (
@@ -41,7 +38,6 @@ from axialmix.particles.simulate import (
     TracerPulse,
     memory_estimate,
     simulate,
-    stderr_progress,
 )
 
 __all__ = [
@@ -51,7 +47,6 @@ __all__ = [
     "ParticleNetwork",
     "SimulationResult",
     "TracerPulse",
-    "axial_radial_grid",
     "check_feed_schedule",
     "check_move_schedule",
     "chi_square",
@@ -59,7 +54,6 @@ __all__ = [
     "exit_age_from_outflow",
     "feeder_feed",
     "memory_estimate",
-    "four_compartment",
     "particle_axial_radial_grid",
     "particle_four_compartment",
     "particle_v_blender",
@@ -70,8 +64,6 @@ __all__ = [
     "scheduled_moves",
     "simulate",
     "species_fraction",
-    "stderr_progress",
-    "v_blender",
     "v_blender_loading",
     "variance_reduction_ratio",
 ]

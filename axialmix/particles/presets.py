@@ -2,9 +2,9 @@
 
 Each ``particle_*`` function returns a :class:`ParticleNetwork` (and
 :func:`v_blender_loading` the initial species counts of a batch blender), so the simulator
-runs on exactly the description the mean-field model uses. The names without the
-``particle_`` prefix are deprecated aliases (one release): they clashed with the mean-field
-presets of :mod:`axialmix.network`, which return compartment networks.
+runs on exactly the description the mean-field model uses. The ``particle_`` prefix keeps
+them apart from the mean-field presets of :mod:`axialmix.network`, which return compartment
+networks.
 """
 
 from __future__ import annotations
@@ -14,16 +14,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from axialmix import network as mean_field
-from axialmix._deprecation import deprecated_alias
 from axialmix.particles.description import ParticleNetwork
 
 __all__ = [
-    "axial_radial_grid",
-    "four_compartment",
     "particle_axial_radial_grid",
     "particle_four_compartment",
     "particle_v_blender",
-    "v_blender",
     "v_blender_loading",
 ]
 
@@ -133,18 +129,3 @@ def particle_axial_radial_grid(
         total_holdup=particles_per_compartment * n_axial * n_radial,
     )
     return ParticleNetwork.from_network(network, time_step=time_step)
-
-
-v_blender = deprecated_alias(
-    particle_v_blender, "axialmix.particles.v_blender", "axialmix.particles.particle_v_blender"
-)
-four_compartment = deprecated_alias(
-    particle_four_compartment,
-    "axialmix.particles.four_compartment",
-    "axialmix.particles.particle_four_compartment",
-)
-axial_radial_grid = deprecated_alias(
-    particle_axial_radial_grid,
-    "axialmix.particles.axial_radial_grid",
-    "axialmix.particles.particle_axial_radial_grid",
-)

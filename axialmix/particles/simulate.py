@@ -18,7 +18,6 @@ done so far (``result.interrupted`` is then true).
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -26,7 +25,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from axialmix._deprecation import warn_deprecated
 from axialmix.particles import _kernels
 from axialmix.particles._random import seed_generator, xoshiro_state
 from axialmix.particles.description import ParticleNetwork
@@ -41,7 +39,6 @@ __all__ = [
     "TracerPulse",
     "memory_estimate",
     "simulate",
-    "stderr_progress",
 ]
 
 ENGINES = ("count", "identity")
@@ -163,18 +160,6 @@ class SimulationResult:
         if not stays[-1]:
             ends[-1] = rows[-1, 1] + 1
         return places[stays], (ends - entered)[stays]
-
-
-def stderr_progress(step: int, total: int, elapsed: float) -> None:
-    """Deprecated: pass a callback updating :func:`axialmix._progress.progress_bar` instead.
-
-    Prints ``step / total`` and the elapsed time on one line of standard error.
-    """
-    warn_deprecated(
-        "axialmix.particles.stderr_progress", "a callback updating axialmix._progress.progress_bar"
-    )
-    share = 100.0 * step / total if total else 100.0
-    print(f"step {step}/{total} ({share:.1f} %), {elapsed:.2f} s", file=sys.stderr, flush=True)
 
 
 class MemoryEstimate(NamedTuple):

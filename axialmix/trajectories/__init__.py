@@ -18,8 +18,7 @@ What is derived from a trajectory:
   fitting window being chosen automatically (:func:`fit_dispersion_coefficient`);
 * path length ``Σ sqrt(Δx² + Δy² + Δz²)``, optionally after resampling to a coarser time
   step (the source compared 0.0169, 0.0336 and 0.0472 s);
-* Peclet number ``Pe = v L / D_z`` (:func:`axialmix.analytic.peclet_from_physical`;
-  ``peclet_number`` here is its deprecated alias with the order ``v, L, D_z``).
+* Peclet number ``Pe = v L / D_z`` (:func:`axialmix.analytic.peclet_from_physical`).
 
 :func:`synthetic_trajectories` generates trajectories with known ``v`` and ``D_z`` (spiral
 motion around the shaft, exact Gaussian axial increments, an optional short-time correlated
@@ -34,8 +33,6 @@ Typical use::
     print(summary.report())
 """
 
-from .._deprecation import warn_deprecated
-from ..analytic.inverse import peclet_from_physical
 from ._analysis import (
     TrajectoryAnalysis,
     TrajectorySummary,
@@ -57,19 +54,6 @@ from ._residence import resample_trajectory, residence_time, zone_residence_time
 from ._synthetic import synthetic_trajectories
 from ._trajectory import Trajectory
 
-
-def peclet_number(
-    axial_velocity: float, blender_length: float, dispersion_coefficient: float
-) -> float:
-    """Deprecated: use :func:`axialmix.analytic.peclet_from_physical` (v, D_z, L order).
-
-    Kept for one release with its ``(v, L, D_z)`` argument order; returns ``Pe = v L / D_z``.
-    """
-    warn_deprecated(
-        "axialmix.trajectories.peclet_number", "axialmix.analytic.peclet_from_physical"
-    )
-    return float(peclet_from_physical(axial_velocity, dispersion_coefficient, blender_length))
-
 __all__ = [
     "DispersionFit",
     "MeanSquareDisplacement",
@@ -84,7 +68,6 @@ __all__ = [
     "helix_polyline_length",
     "mean_square_displacement",
     "path_length",
-    "peclet_number",
     "pooled_axial_dispersion",
     "pooled_mean_square_displacement",
     "read_trajectories",

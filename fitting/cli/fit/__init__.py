@@ -213,10 +213,6 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     return parser
 
 
-#: Deprecated name of :func:`add_parser` (kept one release).
-add_fit_parser = add_parser
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``axialmix fit`` with parsed arguments; returns the exit status.
 
