@@ -8,7 +8,10 @@ computed from a measured curve.
 Built-in models (also by name through :func:`get_model`):
 
 * ``'adm'`` (:data:`adm_closed`): closed–closed ADM, exact
-  (:func:`axialmix.analytic.exit_age_closed`); parameters ``tau``, ``peclet``.
+  (:func:`axialmix.analytic.exit_age_closed`; a curve of 16,384 points or more from exact
+  values at the nodes of Chebyshev panels, interpolated to about 1e-13 of the peak and
+  checked at every evaluation, :func:`axialmix.analytic.panels.exit_age_closed_panels`);
+  parameters ``tau``, ``peclet``.
 * ``'adm-fv'`` (:data:`adm_closed_fv`): closed–closed ADM by finite volumes
   (:func:`axialmix.adm.exit_age`); ``tau``, ``peclet``.
 * ``'adm-open'`` (:data:`adm_open`): open–open ADM (:func:`axialmix.analytic.exit_age_open`);

@@ -76,6 +76,13 @@ class Model:
     - `transfer_unit`: optional ``params -> TransferFunction``, the model as an exact unit of
       :mod:`axialmix.analytic`; with it, fits report fitted values outside the range where
       its inversion is verified (:func:`axialmix.analytic.unverified_parameters`).
+    - `long_curve_check`: optional ``(t, params) -> (deviation, peak)`` of a model whose
+      `function` evaluates a curve of many points by interpolating exact values (the
+      closed–closed ADM, from :data:`axialmix.analytic.panels.LONG_CURVE` points): the
+      largest deviation of that evaluation from the exact one over the times `t` at
+      `params` (plain numbers), and the exact curve's peak (both 1/T; an exact evaluation of
+      every point, seconds for a million); ``None`` where `t` is short enough for `function`
+      to be exact.
     """
 
     name: str
@@ -93,6 +100,8 @@ class Model:
     inlet_response: InletResponse | None = field(default=None, repr=False)
     transfer_unit: Callable[[Mapping[str, float]], Any] | None = field(default=None,
                                                                         repr=False)
+    long_curve_check: Callable[..., tuple[float, float] | None] | None = field(
+        default=None, repr=False)
 
     def __post_init__(self) -> None:
         names = tuple(self.parameter_names)
