@@ -8,9 +8,10 @@ computed from a measured curve.
 Built-in models (also by name through :func:`get_model`):
 
 * ``'adm'`` (:data:`adm_closed`): closed–closed ADM, exact
-  (:func:`axialmix.analytic.exit_age_closed`; a curve of 16,384 points or more from exact
-  values at the nodes of Chebyshev panels, interpolated to about 1e-13 of the peak and
-  checked at every evaluation, :func:`axialmix.analytic.panels.exit_age_closed_panels`);
+  (:func:`axialmix.analytic.exit_age_closed`; a curve of 16,384 points or more, in a fit
+  one of more than 8,192 samples padded to a power of two, from exact values at the nodes
+  of Chebyshev panels, interpolated to about 1e-13 of the peak and checked at every
+  evaluation, :func:`axialmix.analytic.panels.exit_age_closed_panels`);
   parameters ``tau``, ``peclet``.
 * ``'adm-fv'`` (:data:`adm_closed_fv`): closed–closed ADM by finite volumes
   (:func:`axialmix.adm.exit_age`); ``tau``, ``peclet``.

@@ -119,11 +119,9 @@ def _adm_closed_function(t, p):
     return exit_age_closed(t, p["tau"], p["peclet"])
 
 
-def _adm_closed_long_check(t, p) -> tuple[float, float] | None:
+def _adm_closed_long_check(t, p) -> tuple[float, float]:
     """The panel evaluation's largest deviation from the exact E over `t` and the peak
-    (1/time), or ``None`` for a curve evaluated exactly."""
-    if np.size(t) < LONG_CURVE:
-        return None
+    (1/time)."""
     return closed_panel_deviation(np.asarray(t, float), float(p["tau"]), float(p["peclet"]))
 
 

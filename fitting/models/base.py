@@ -78,11 +78,11 @@ class Model:
       its inversion is verified (:func:`axialmix.analytic.unverified_parameters`).
     - `long_curve_check`: optional ``(t, params) -> (deviation, peak)`` of a model whose
       `function` evaluates a curve of many points by interpolating exact values (the
-      closed–closed ADM, from :data:`axialmix.analytic.panels.LONG_CURVE` points): the
-      largest deviation of that evaluation from the exact one over the times `t` at
-      `params` (plain numbers), and the exact curve's peak (both 1/T; an exact evaluation of
-      every point, seconds for a million); ``None`` where `t` is short enough for `function`
-      to be exact.
+      closed–closed ADM, from :data:`axialmix.analytic.panels.LONG_CURVE` points, padding
+      included: a fit pads a curve to a power of two): the largest deviation of that
+      evaluation from the exact one over the times `t` at `params` (plain numbers), and the
+      exact curve's peak (both 1/T; an exact evaluation of every point, seconds for a
+      million), whatever the length of `t`.
     """
 
     name: str
