@@ -25,7 +25,9 @@ are returned in 1/(time unit).
 
 :func:`peclet_from_variance_ratio` is the unchecked, traceable core of
 :func:`peclet_from_moments`. :mod:`axialmix.analytic.highprecision` holds the slow mpmath
-series used as the reference in tests and benchmarks.
+series used as the reference in tests and benchmarks. :mod:`axialmix.analytic.panels`
+evaluates the closed–closed E on curves of many points from exact values at the nodes of
+Chebyshev panels (about 1e-13 of the peak, checked at every evaluation).
 """
 
 from axialmix.analytic.closed import (
