@@ -7,8 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from axialmix.analytic import exit_age_closed
-from axialmix.analytic import panels
+from axialmix.analytic import exit_age_closed, panels
 from axialmix.analytic.panels import (
     CHECK_TOLERANCE,
     LONG_CURVE,
