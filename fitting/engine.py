@@ -54,6 +54,8 @@ from fitting.solve import (
     export_key,
     lm_initial,
     lm_step,
+    weighted_evaluation,
+    weighted_residuals,
 )
 
 __all__ = ["CHUNK", "LANES", "ErrorPlan", "chunk_program", "chunk_shape", "combined_errors",
@@ -251,23 +253,8 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
             return jnp.where(size > 0, size, 1.0)
 
         def evaluator(w, size):
-            used = w > 0
-            root = jnp.sqrt(w / size)
-
-            def evaluate(u):
-                free_values = to_free(u)
-                derivative = jax.jvp(to_free, (u,), (jnp.ones_like(u),))[1]
-
-                def curve(f):
-                    value = predict(f, base, time)
-                    return value, value
-
-                jacobian, predicted = jax.jacfwd(curve, has_aux=True)(free_values)
-                residual = jnp.where(used, root * (predicted - observed), 0.0)
-                scaled = jnp.where(used[:, None], root[:, None] * jacobian * derivative, 0.0)
-                return residual, scaled, (predicted, jacobian)
-
-            return evaluate
+            return weighted_evaluation(to_free, lambda f: predict(f, base, time), observed,
+                                       jnp.sqrt(w / size), w > 0)
 
         n = time.shape[0]
         empty = (jnp.zeros(n), jnp.zeros((n, n_free)),
@@ -324,12 +311,9 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
             end under new weights `w`: that iteration only evaluates at its start, where the
             model's values and Jacobian are the finished fit's own, so they are reused, not
             evaluated again (the same numbers; one model evaluation fewer a pass)."""
-            used = w > 0
-            root = jnp.sqrt(w / size)
             predicted, physical = record["predicted"], record["jacobian"]
-            residual = jnp.where(used, root * (predicted - observed), 0.0)
-            scaled = jnp.where(used[:, None],
-                               root[:, None] * physical * record["derivative"], 0.0)
+            residual, scaled = weighted_residuals(predicted, physical, record["derivative"],
+                                                  observed, jnp.sqrt(w / size), w > 0)
             start = lm_initial(record["u"], empty)
             carry = lm_step(lambda u: (residual, scaled, (predicted, physical)), start, options)
             # No evaluation was made: the count stays that of the evaluations made.

@@ -61,6 +61,8 @@ This face re-exports their public names.
 from fitting.solve.first_order import adam_minimise as adam_minimise
 from fitting.solve.levenberg_marquardt import lm_initial as lm_initial
 from fitting.solve.levenberg_marquardt import lm_step as lm_step
+from fitting.solve.levenberg_marquardt import weighted_evaluation as weighted_evaluation
+from fitting.solve.levenberg_marquardt import weighted_residuals as weighted_residuals
 from fitting.solve.multistart import (
     MultiStartSolver,
     compiled_solver,

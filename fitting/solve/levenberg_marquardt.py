@@ -64,6 +64,44 @@ _SLOW_FALL = 1e-3
 _MAX_STEP = 1.0
 
 
+def weighted_residuals(predicted, jacobian, derivative, observed, root, used):
+    """Levenberg–Marquardt's residuals and their Jacobian in the unconstrained coordinates.
+
+    **Arguments:** the model's values and their Jacobian in the free values at a point, the
+    derivative of the free values in their unconstrained coordinates there (one per
+    coordinate: the transforms act coordinate by coordinate), the observed values, the
+    square roots of the weights over the loss's size, and which points count.
+
+    **Returns:** ``(r, J)``: ``root (m - y)`` and its Jacobian, zero where a point does not
+    count.
+    """
+    residual = jnp.where(used, root * (predicted - observed), 0.0)
+    scaled = jnp.where(used[:, None], root[:, None] * jacobian * derivative, 0.0)
+    return residual, scaled
+
+
+def weighted_evaluation(to_free: Callable, model_curve: Callable, observed, root, used
+                        ) -> Callable:
+    """``evaluate(u) -> (r, J, (m, dm/df))`` of a weighted least-squares fit, for
+    :func:`lm_step`: the model curve `model_curve` of the free values ``to_free(u)`` and its
+    forward-mode Jacobian, weighted by :func:`weighted_residuals`."""
+
+    def evaluate(u):
+        free_values = to_free(u)
+        derivative = jax.jvp(to_free, (u,), (jnp.ones_like(u),))[1]
+
+        def curve(f):
+            value = model_curve(f)
+            return value, value
+
+        jacobian, predicted = jax.jacfwd(curve, has_aux=True)(free_values)
+        residual, scaled = weighted_residuals(predicted, jacobian, derivative, observed, root,
+                                              used)
+        return residual, scaled, (predicted, jacobian)
+
+    return evaluate
+
+
 def lm_initial(u0, empty):
     """Levenberg–Marquardt's loop state before its first iteration (which only evaluates
     at `u0`); `empty`: zeros of the shapes of ``(r, J, aux)``. See :func:`lm_step`."""

@@ -14,7 +14,7 @@ import axialmix  # noqa: F401  (float64 before any JAX array is made)
 from fitting.losses import LOSSES
 from fitting.parameters import Layout
 from fitting.solve.first_order import adam_minimise, lbfgs_minimise
-from fitting.solve.levenberg_marquardt import levenberg_marquardt
+from fitting.solve.levenberg_marquardt import levenberg_marquardt, weighted_evaluation
 from fitting.solve.programs import Program, export_key
 from fitting.solve.settings import SolverPlan
 
@@ -58,19 +58,9 @@ def single_start_function(model, layout: Layout, options: SolverPlan) -> Callabl
         if options.method == "lm":
             root = jnp.sqrt(weights / scale)
 
-            def evaluate(u):
-                free_values = layout.physical_from_unconstrained(u)
-                derivative = jax.jvp(layout.physical_from_unconstrained, (u,),
-                                     (jnp.ones_like(u),))[1]
-
-                def curve(f):
-                    value = predict(f, base, time)
-                    return value, value
-
-                jacobian, predicted = jax.jacfwd(curve, has_aux=True)(free_values)
-                residual = jnp.where(used, root * (predicted - observed), 0.0)
-                scaled = jnp.where(used[:, None], root[:, None] * jacobian * derivative, 0.0)
-                return residual, scaled, (predicted, jacobian)
+            evaluate = weighted_evaluation(layout.physical_from_unconstrained,
+                                           lambda f: predict(f, base, time), observed, root,
+                                           used)
 
             size, count = time.shape[0], u0.shape[0]
             empty = (jnp.zeros(size), jnp.zeros((size, count)),
