@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -17,14 +18,24 @@ from axialmix.line import _grid
 from axialmix.line._line import Line, TabulatedRTD, as_evaluator
 from axialmix.line._unit import Unit, is_concrete
 
-__all__ = ["Disturbance", "OutletResponse", "outlet_response", "response_at"]
+__all__ = ["Disturbance", "OutletResponse", "grid_curve", "has_grid", "outlet_response",
+           "response_at", "response_on_grid"]
 
 _UNIFORM_RTOL = 1e-9
 
 
 def _vector(name: str, value: ArrayLike) -> Array:
     require_finite(name, value)
+    if is_concrete(value):  # NumPy: building a disturbance runs no program
+        return np.atleast_1d(np.asarray(value, float))
     return jnp.atleast_1d(jnp.asarray(value, float))
+
+
+def _numbers(*values) -> tuple:
+    """The values as NumPy floats when all are concrete, else as JAX arrays."""
+    if is_concrete(values):
+        return tuple(np.asarray(value, float) for value in values)
+    return tuple(jnp.asarray(value, float) for value in values)
 
 
 class Disturbance(eqx.Module):
@@ -77,7 +88,7 @@ class Disturbance(eqx.Module):
             _vector("step sizes", steps[1]),
             _vector("pulse times", pulses[0]),
             _vector("pulse amounts", pulses[1]),
-            tuple((jnp.asarray(t, float), jnp.asarray(v, float)) for t, v in traces),
+            tuple(_numbers(t, v) for t, v in traces),
             value_unit,
             time_unit,
         )
@@ -105,10 +116,10 @@ class Disturbance(eqx.Module):
     ) -> Disturbance:
         """A deviation `magnitude` lasting `duration` (positive) from `start`."""
         require_positive("duration", duration)
-        start = jnp.asarray(start, float)
+        start, duration, magnitude = _numbers(start, duration, magnitude)
+        stack = np.stack if is_concrete((start, duration, magnitude)) else jnp.stack
         return cls._make(
-            steps=(jnp.stack([start, start + duration]),
-                   jnp.stack([jnp.asarray(magnitude, float), -jnp.asarray(magnitude, float)])),
+            steps=(stack([start, start + duration]), stack([magnitude, -magnitude])),
             value_unit=value_unit,
             time_unit=time_unit,
         )
@@ -120,9 +131,10 @@ class Disturbance(eqx.Module):
     ) -> Disturbance:
         """A linear change from 0 at `start` to `magnitude` after `duration`, then held."""
         require_positive("duration", duration)
-        start = jnp.asarray(start, float)
-        times = jnp.stack([start, start + duration])
-        values = jnp.stack([jnp.zeros(()), jnp.asarray(magnitude, float)])
+        start, duration, magnitude = _numbers(start, duration, magnitude)
+        stack = np.stack if is_concrete((start, duration, magnitude)) else jnp.stack
+        times = stack([start, start + duration])
+        values = stack([np.zeros(()), magnitude])
         return cls._make(traces=((times, values),), value_unit=value_unit, time_unit=time_unit)
 
     @classmethod
@@ -267,6 +279,67 @@ def response_at(evaluator, disturbance: Disturbance, times: Array, *, uniform_tr
         else:
             contribution = _trace_response_dense(evaluator, flat, trace)
         total = total + contribution.reshape(times.shape)
+    return total
+
+
+def has_grid(evaluator) -> bool:
+    """Whether `evaluator` evaluates its curves on a uniform grid faster than time by time
+    (a unit whose model gives them by propagation, :attr:`UnitModel.grid`)."""
+    return isinstance(evaluator, Unit) and evaluator.model.grid is not None
+
+
+def grid_curve(evaluator, kind: str, first: Array, step: Array, count: int) -> Array:
+    """The curve `kind` (``"exit_age"``, ``"cumulative"`` or ``"ramp"``) of an evaluator at
+    the uniformly spaced times ``first + j step``, ``j < count``: propagated along the grid
+    where the evaluator has one (:func:`has_grid`), else evaluated at those times."""
+    if has_grid(evaluator):
+        return evaluator.model.grid(kind, first, step, count, evaluator.parameters,
+                                    evaluator.structure)
+    times = first + step * jnp.arange(count)
+    if kind == "exit_age":
+        return evaluator.exit_age(times)
+    return evaluator.cumulative(times) if kind == "cumulative" else (
+        evaluator.ramp_response(times))
+
+
+def response_on_grid(evaluator, disturbance: Disturbance, first: Array, step: Array,
+                     count: int) -> Array:
+    """Outlet deviation at the uniformly spaced times ``first + j step``, ``j < count``, as
+    :func:`response_at` gives it there (traceable; `count` static).
+
+    Each event of the disturbance sees the output times as a uniform grid of lags, on which
+    an evaluator with :func:`has_grid` (a network) propagates its curves instead of
+    evaluating them time by time; other evaluators are evaluated at the grid's times.
+
+    **Arguments:**
+
+    - `evaluator`: a :class:`Unit` or :class:`TabulatedRTD` covering the lags needed.
+    - `disturbance`: the inlet deviation.
+    - `first`, `step`: the first output time and the spacing (time unit, step > 0).
+    - `count`: the number of output times.
+
+    **Returns:**
+
+    The outlet deviation ``(count,)``.
+    """
+    first, step = jnp.asarray(first, float), jnp.asarray(step, float)
+
+    def curves(kind, origins):
+        return jax.vmap(lambda origin: grid_curve(evaluator, kind, first - origin, step,
+                                                   count))(origins)
+
+    total = jnp.zeros(count)
+    if disturbance.step_times.shape[0]:
+        total = total + disturbance.step_sizes @ curves("cumulative", disturbance.step_times)
+    if disturbance.pulse_times.shape[0]:
+        total = total + disturbance.pulse_amounts @ curves("exit_age", disturbance.pulse_times)
+    for trace_times, values in disturbance.traces:
+        # As _trace_response_dense: the rise over [t_k, t_k+1] answers with the mean of F
+        # over the lag window, [R(t - t_k) - R(t - t_k+1)] / (t_k+1 - t_k).
+        ramps = curves("ramp", trace_times)
+        means = (ramps[:-1] - ramps[1:]) / jnp.diff(trace_times)[:, None]
+        total = (total + values[0] * curves("cumulative", trace_times[:1])[0]
+                 + jnp.diff(values) @ means)
     return total
 
 

@@ -36,8 +36,15 @@ from jax.typing import ArrayLike
 
 from axialmix._validation import require_finite, require_increasing_times, require_positive
 from axialmix.analytic.fourier import grid_inversion, truncation_estimates
-from axialmix.line._disturbance import Disturbance, lag_horizon, response_at
+from axialmix.line._disturbance import (
+    Disturbance,
+    has_grid,
+    lag_horizon,
+    response_at,
+    response_on_grid,
+)
 from axialmix.line._line import Line, TabulatedRTD, as_evaluator
+from axialmix.line._programs import ProgramRunner, compile_program, run_program
 from axialmix.line._throughput import FlowSchedule
 from axialmix.line._unit import Unit
 
@@ -202,15 +209,25 @@ def _crossing(excess, low: Array, high: Array) -> Array:
 
     Illinois' regula falsi: the bracket is kept, and an end that stays twice has its value
     halved, so convergence is superlinear (about 1e-15 of the bracket after a dozen steps
-    for a smooth excess; a fixed number of steps keeps it traceable and vmappable).
+    for a smooth excess). At most :data:`_ROOT_STEPS` steps, fewer once every bracket has
+    closed to a few units of round-off or landed on a zero (under ``vmap`` the loop runs
+    until the last lane is done; the others keep their values).
     """
     # One evaluation site for both ends (and, in the loop, one for the guesses): the model's
     # program appears twice in the compiled code, not four times.
     ends = excess(jnp.concatenate([low, high]))
     f_low, f_high = ends[: low.shape[0]], ends[low.shape[0]:]
 
-    def body(_, state):
-        a, b, fa, fb, side = state
+    def closed(a, b, fa, fb):
+        width = 4.0 * jnp.finfo(float).eps * jnp.maximum(jnp.abs(a), jnp.abs(b))
+        return (b - a <= width) | (fa == 0) | (fb == 0) | ~jnp.isfinite(fa + fb)
+
+    def running(state):
+        step, a, b, fa, fb, _ = state
+        return (step < _ROOT_STEPS) & ~jnp.all(closed(a, b, fa, fb))
+
+    def body(state):
+        step, a, b, fa, fb, side = state
         guess = jnp.clip(b - fb * (b - a) / jnp.where(fb != fa, fb - fa, 1.0), a, b)
         guess = jnp.where(jnp.isfinite(guess) & (fb != fa), guess, 0.5 * (a + b))
         fg = excess(guess)
@@ -220,10 +237,10 @@ def _crossing(excess, low: Array, high: Array) -> Array:
         new_b = jnp.where(same_as_a, b, guess)
         new_fa = jnp.where(same_as_a, fg, jnp.where(side == -1, fa / 2, fa))
         new_fb = jnp.where(same_as_a, jnp.where(side == 1, fb / 2, fb), fg)
-        return new_a, new_b, new_fa, new_fb, jnp.where(same_as_a, 1, -1)
+        return step + 1, new_a, new_b, new_fa, new_fb, jnp.where(same_as_a, 1, -1)
 
-    a, b, fa, fb, _ = jax.lax.fori_loop(
-        0, _ROOT_STEPS, body, (low, high, f_low, f_high, jnp.zeros(low.shape, int))
+    _, a, b, fa, fb, _ = jax.lax.while_loop(
+        running, body, (0, low, high, f_low, f_high, jnp.zeros(low.shape, int))
     )
     return jnp.where(jnp.abs(fa) < jnp.abs(fb), a, b)
 
@@ -245,9 +262,42 @@ def _outlet(evaluator, disturbance, times):
     return values.reshape(-1)[:n]
 
 
-def _window(evaluator, disturbance, times, target, lower, upper, flow):
-    """Start, stop, amount, diverts and the outlet content on the times (traceable)."""
-    outlet = target + _outlet(evaluator, disturbance, times)
+def _uniform_count(times: np.ndarray) -> int:
+    """How many leading times of a concrete scan lie on one uniform grid (to 1e-9 of its
+    spacing): all of them, all but the last (a scan that ends on the given end, off its
+    stride), or none."""
+    times = np.asarray(times, float)
+
+    def on_grid(count):
+        if count < 3:
+            return False
+        step = (times[count - 1] - times[0]) / (count - 1)
+        grid = times[0] + step * np.arange(count)
+        return step > 0 and bool(np.max(np.abs(times[:count] - grid)) <= 1e-9 * step)
+
+    for count in (times.shape[0], times.shape[0] - 1):
+        if on_grid(count):
+            return count
+    return 0
+
+
+def _scan_outlet(evaluator, disturbance, times, uniform: int):
+    """The outlet deviation on the scan: its first `uniform` times as one grid
+    (:func:`response_on_grid`) when the evaluator propagates along grids, the rest time by
+    time."""
+    if uniform < 3 or not has_grid(evaluator):
+        return _outlet(evaluator, disturbance, times)
+    step = (times[uniform - 1] - times[0]) / (uniform - 1)
+    head = response_on_grid(evaluator, disturbance, times[0], step, uniform)
+    if uniform == times.shape[0]:
+        return head
+    return jnp.concatenate([head, response_at(evaluator, disturbance, times[uniform:])])
+
+
+def _window(evaluator, disturbance, times, target, lower, upper, flow, uniform: int = 0):
+    """Start, stop, amount, diverts and the outlet content on the times (traceable; the first
+    `uniform` times uniformly spaced, see :func:`_uniform_count`)."""
+    outlet = target + _scan_outlet(evaluator, disturbance, times, uniform)
 
     def excess_at(t):
         return _excess(target + response_at(evaluator, disturbance, t), lower, upper)
@@ -283,9 +333,9 @@ def _unsettled(evaluator, disturbance, end):
     return jnp.where(lag > 0, 1.0 - evaluator.cumulative(jnp.maximum(lag, 0.0)), 1.0)
 
 
-@eqx.filter_jit
-def _window_jit(evaluator, disturbance, times, target, lower, upper, flow):
-    window = _window(evaluator, disturbance, times, target, lower, upper, flow)
+def _window_program(evaluator, disturbance, times, target, lower, upper, flow, uniform):
+    """The window on a scan and the share of the effect still to come at its end."""
+    window = _window(evaluator, disturbance, times, target, lower, upper, flow, uniform)
     return (*window, _unsettled(evaluator, disturbance, times[-1]))
 
 
@@ -295,9 +345,25 @@ def _candidate_ends(times: np.ndarray) -> np.ndarray:
     return times[0] + span * 2.0 ** np.arange(_EXTENSIONS + 1)
 
 
-@eqx.filter_jit
-def _settle_jit(evaluator, disturbance, ends):
+def _settle_program(evaluator, disturbance, ends):
+    """``1 - F`` at the lag from the last event to each candidate end."""
     return jax.vmap(lambda end: _unsettled(evaluator, disturbance, end))(ends)
+
+
+def _event_times_host(disturbance: Disturbance) -> np.ndarray:
+    """:meth:`Disturbance.event_times` of a concrete disturbance, in NumPy (no program)."""
+    parts = [np.asarray(disturbance.step_times, float), np.asarray(disturbance.pulse_times, float),
+             *(np.asarray(times, float) for times, _ in disturbance.traces)]
+    return np.concatenate(parts)
+
+
+def _lag_horizon_host(disturbance: Disturbance, times: np.ndarray) -> float:
+    """:func:`lag_horizon` of a concrete disturbance and times, in NumPy (no program)."""
+    events = _event_times_host(disturbance)
+    latest = float(np.max(times))
+    if events.size == 0:
+        return latest
+    return max(latest - float(events.min()), float(np.finfo(float).tiny))
 
 
 def _sample_settle(unit_factory, parameters, disturbance, ends, horizon, batch):
@@ -308,9 +374,6 @@ def _sample_settle(unit_factory, parameters, disturbance, ends, horizon, batch):
         return jax.vmap(lambda end: _unsettled(evaluator, disturbance, end))(ends)
 
     return jax.lax.map(one, parameters, batch_size=batch)
-
-
-_sample_settle_jit = eqx.filter_jit(_sample_settle)
 
 
 def _extended(times: np.ndarray, factor: float = 2.0) -> np.ndarray:
@@ -376,6 +439,7 @@ def diversion_window(
     content_unit: str = "",
     amount_unit: str = "",
     extend: bool = True,
+    programs: ProgramRunner | None = None,
 ) -> DiversionWindow:
     """When to start and stop diverting after a disturbance, and how much material that is.
 
@@ -405,6 +469,8 @@ def diversion_window(
       no longer changes, so a window open at the end stays open (``stop = inf``) and none
       starts later; a window is never cut by the end of `times`. A ValueError says when the
       outlet has not settled after the doublings.
+    - `programs`: how the compiled programs are run (:data:`ProgramRunner`: a cache across
+      processes, say); None: compiled in this process.
 
     **Returns:**
 
@@ -415,7 +481,8 @@ def diversion_window(
     """
     _check(rtd, disturbance, times, target, lower, upper, flow)
     times = np.asarray(times, float)
-    target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
+    target, lower, upper = (np.asarray(x, float) for x in (target, lower, upper))
+    flow = flow if isinstance(flow, FlowSchedule) else np.asarray(flow, float)
     lags = _lags(disturbance)
     inverted = _inverted_unit(rtd)
     if extend:
@@ -425,8 +492,9 @@ def diversion_window(
         if inverted is not None:
             unsettled = _inverted_unsettled(inverted, disturbance, ends)
         else:
-            evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(ends)))
-            unsettled = np.asarray(_settle_jit(evaluator, disturbance, jnp.asarray(ends)))
+            evaluator = as_evaluator(rtd, _lag_horizon_host(disturbance, ends))
+            unsettled = np.asarray(run_program(programs, "divert-settle", _settle_program,
+                                               evaluator, disturbance, ends))
         settled = np.flatnonzero(unsettled <= SETTLED)
         if settled.size == 0:
             raise ValueError(
@@ -441,20 +509,21 @@ def diversion_window(
         # table of its exact values (one program), whose error is estimated and returned.
         evaluator, _, table_error = _nominal_table(inverted, disturbance, times)
     else:
-        evaluator = as_evaluator(rtd, lag_horizon(disturbance, jnp.asarray(times)))
-    start, stop, amount, diverts, outlet, _ = _window_jit(
-        evaluator, disturbance, jnp.asarray(times), target, lower, upper, flow
-    )
+        evaluator = as_evaluator(rtd, _lag_horizon_host(disturbance, times))
+    start, stop, amount, diverts, outlet, _ = run_program(
+        programs, "divert-window", _window_program, evaluator, disturbance, times, target,
+        lower, upper, flow, _uniform_count(times))
     return DiversionWindow(
-        start, stop, amount, diverts, jnp.asarray(times), outlet, lower, upper,
+        start, stop, amount, diverts, times, outlet, lower, upper,
         rtd.time_unit, content_unit, amount_unit, table_error,
     )
 
 
 # ------------------------------------------------------------------ uncertainty
 def _distribution(values, covariance, scale):
-    values = jnp.atleast_1d(jnp.asarray(values, float))
-    covariance = jnp.atleast_2d(jnp.asarray(covariance, float))
+    """The checked values and a square root of the covariance (NumPy)."""
+    values = np.atleast_1d(np.asarray(values, float))
+    covariance = np.atleast_2d(np.asarray(covariance, float))
     require_finite("values", values)
     require_finite("covariance", covariance)
     p = values.shape[0]
@@ -464,30 +533,83 @@ def _distribution(values, covariance, scale):
         raise ValueError(f"scale must be 'linear' or 'log', got {scale!r}.")
     if scale == "log":
         require_positive("values", values)
-    eigenvalues, vectors = np.linalg.eigh(np.asarray(covariance))
+    eigenvalues, vectors = np.linalg.eigh(covariance)
     if eigenvalues.min() < -1e-10 * max(eigenvalues.max(), 1e-300):
         raise ValueError("covariance must be positive semi-definite.")
-    root = jnp.asarray(vectors * np.sqrt(np.clip(eigenvalues, 0.0, None)))
-    centre = jnp.log(values) if scale == "log" else values
-    return centre, root
+    return values, vectors * np.sqrt(np.clip(eigenvalues, 0.0, None))
 
 
-def _draw(values, covariance, samples, seed, scale, region):
+def _regularized_gamma(a: float, x: float) -> float:
+    """The regularized lower incomplete gamma function ``P(a, x)`` (series below ``a + 1``,
+    Lentz's continued fraction of ``1 - P`` above), to about 1e-16."""
+    if x <= 0.0:
+        return 0.0
+    log_front = -x + a * math.log(x) - math.lgamma(a)
+    if x < a + 1.0:
+        term = total = 1.0 / a
+        denominator = a
+        while abs(term) > 1e-17 * abs(total):
+            denominator += 1.0
+            term *= x / denominator
+            total += term
+        return total * math.exp(log_front)
+    tiny = 1e-300
+    b = x + 1.0 - a
+    c, d = 1.0 / tiny, 1.0 / b
+    fraction = d
+    for i in range(1, 10_000):
+        a_i = -i * (i - a)
+        b += 2.0
+        d = a_i * d + b
+        d = tiny if abs(d) < tiny else d
+        c = b + a_i / c
+        c = tiny if abs(c) < tiny else c
+        d = 1.0 / d
+        fraction *= d * c
+        if abs(d * c - 1.0) <= 1e-17:
+            break
+    return 1.0 - math.exp(log_front) * fraction
+
+
+def chi_square_quantile(dof: int, probability: float) -> float:
+    """The `probability` quantile of the chi-square distribution with `dof` degrees of
+    freedom (``2 P^{-1}(dof / 2, probability)``), by bisection to round-off (SciPy's
+    ``chi2.ppf`` without importing SciPy).
+
+    **Arguments:** `dof`: degrees of freedom (positive); `probability`: in (0, 1).
+
+    **Returns:** the quantile (dimensionless).
+    """
+    a = dof / 2.0
+    low, high = 0.0, max(1.0, a)
+    while _regularized_gamma(a, high) < probability:
+        low, high = high, 2.0 * high
+    while True:
+        middle = 0.5 * (low + high)
+        if middle in (low, high):
+            break
+        if _regularized_gamma(a, middle) < probability:
+            low = middle
+        else:
+            high = middle
+    return 2.0 * middle
+
+
+def _draw(values, covariance, samples, seed, scale, region, programs=None):
     """Parameter vectors: normal draws, or (region) points filling the confidence ellipsoid."""
     if not isinstance(samples, int) or samples < 1:
         raise ValueError(f"samples must be a positive integer, got {samples!r}.")
-    centre, root = _distribution(values, covariance, scale)
+    values, root = _distribution(values, covariance, scale)
     radius = None
     if region is not None:
-        from scipy.special import gammaincinv  # chi²_p quantile, without scipy.stats' import
+        radius = math.sqrt(chi_square_quantile(values.shape[0], region))
+    return run_program(programs, "divert-draw", _draw_program, values, root,
+                       np.asarray(seed, np.int64), samples, scale, radius)
 
-        radius = float(np.sqrt(2.0 * gammaincinv(centre.shape[0] / 2.0, region)))
-    return _draw_jit(centre, root, samples, seed, scale, radius)
 
-
-@functools.partial(jax.jit, static_argnums=(2, 4, 5))
-def _draw_jit(centre, root, samples, seed, scale, radius):
-    p = centre.shape[0]
+def _draw_program(values, root, seed, samples, scale, radius):
+    p = values.shape[0]
+    centre = jnp.log(values) if scale == "log" else values
     key_direction, key_radius = jax.random.split(jax.random.PRNGKey(seed))
     normal = jax.random.normal(key_direction, (samples, p))
     if radius is not None:
@@ -679,7 +801,7 @@ def _unsettled_from(cumulative, lags):
 
 
 def _sample_windows(unit_factory, parameters, disturbance, times, target, lower, upper, flow,
-                    horizon, tables, batch):
+                    horizon, tables, uniform, batch):
     """Window ends, diverts, finite and unsettled share of each sample, in batches of `batch`
     vectors (one program: ``lax.map`` over batches of a vmapped window). `tables` is None
     (each sample's unit itself) or ``(step, F, E)``: each sample's exact node values
@@ -693,33 +815,13 @@ def _sample_windows(unit_factory, parameters, disturbance, times, target, lower,
         else:
             evaluator = _table(tables[0], cumulative, density, _inverted_unit(rtd))
         start, stop, _, diverts, outlet = _window(
-            evaluator, disturbance, times, target, lower, upper, flow
+            evaluator, disturbance, times, target, lower, upper, flow, uniform
         )
         unsettled = _unsettled(evaluator, disturbance, times[-1])
         return start, stop, diverts, jnp.all(jnp.isfinite(outlet)), unsettled
 
     items = (parameters, None, None) if tables is None else (parameters, *tables[1:])
     return jax.lax.map(one, items, batch_size=batch)
-
-
-_PROGRAMS: dict = {}
-
-
-def _program(args: tuple, batch: int):
-    """The compiled sample program for `args` and `batch` with its temporary memory (bytes),
-    compiled once per structure and shapes."""
-    leaves, structure = jax.tree_util.tree_flatten(args)
-    key = (structure, batch, tuple(
-        (np.shape(leaf), str(np.asarray(leaf).dtype)) if eqx.is_array(leaf) else
-        ("static", leaf) for leaf in leaves))
-    if key not in _PROGRAMS:
-        compiled = eqx.filter_jit(_sample_windows).lower(*args, batch).compile()
-        analysis = compiled.compiled.memory_analysis()
-        temp = int(getattr(analysis, "temp_size_in_bytes", 0) or 0) if analysis else 0
-        if len(_PROGRAMS) > 32:
-            _PROGRAMS.clear()
-        _PROGRAMS[key] = (compiled, temp)
-    return _PROGRAMS[key]
 
 
 def _sample_step(given: int) -> int:
@@ -735,26 +837,23 @@ def _sample_scan(times: np.ndarray, step: int) -> np.ndarray:
 
 
 def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lower, upper,
-                      flow, horizon, tables=None):
-    """Run the sample program in batches sized to :func:`memory_budget`."""
+                      flow, horizon, tables=None, programs=None):
+    """Run the sample program (every sample in one call, in batches of vectors whose
+    temporary memory stays within :func:`memory_budget`)."""
+    parameters = np.asarray(parameters)
     count = parameters.shape[0]
     batch = min(_BATCH, count)
     budget = memory_budget()
-    original = parameters
     while True:
         # Whole batches only (a remainder would be a second copy of the program): the last
         # batch is filled with copies of the first vector, whose results are dropped.
-        padding = -count % batch
-
-        def pad(array, padding=padding):
-            return jnp.concatenate([array, jnp.repeat(array[:1], padding, axis=0)])
-
-        parameters = pad(original)
         padded_tables = None if tables is None else (
-            tables[0], pad(tables[1]), None if tables[2] is None else pad(tables[2]))
-        args = (unit_factory, parameters, disturbance, jnp.asarray(times), target, lower,
-                upper, flow, horizon, padded_tables)
-        compiled, temp = _program(args, batch)
+            tables[0], _pad_rows(tables[1], batch),
+            None if tables[2] is None else _pad_rows(tables[2], batch))
+        args = (unit_factory, _pad_rows(parameters, batch), disturbance, times, target,
+                lower, upper, flow, horizon, padded_tables, _uniform_count(times), batch)
+        compiled = compile_program(programs, "divert-samples", _sample_windows, args)
+        temp = compiled.temporary_bytes()
         if temp <= budget or batch == 1:
             break
         batch = max(1, int(batch * budget / temp))
@@ -762,8 +861,7 @@ def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lowe
         raise DiversionTooLarge(
             "points", f"one covariance sample over {times.shape[0]:,} scan times needs about "
             f"{temp / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB allowed")
-    results = compiled(*args, batch)
-    return tuple(result[:count] for result in results)
+    return tuple(np.asarray(result)[:count] for result in compiled(*args))
 
 
 @functools.partial(eqx.filter_jit)
@@ -832,8 +930,10 @@ def _sample_grid(disturbance: Disturbance, scan: np.ndarray, step: float):
 
 
 def _pad_rows(parameters, batch: int):
-    return jnp.concatenate([parameters, jnp.repeat(parameters[:1], -parameters.shape[0] % batch,
-                                                   axis=0)])
+    """`parameters` with copies of their first row up to a whole number of batches (NumPy)."""
+    parameters = np.asarray(parameters)
+    return np.concatenate([parameters, np.repeat(parameters[:1], -parameters.shape[0] % batch,
+                                                 axis=0)])
 
 
 def _unit_transfer(unit: Unit):
@@ -976,6 +1076,7 @@ def conservative_diversion_window(
     content_unit: str = "",
     amount_unit: str = "",
     max_failed_share: float = MAX_FAILED_SHARE,
+    programs: ProgramRunner | None = None,
 ) -> ConservativeDiversion:
     """A diversion window that covers the true one with a stated probability, by sampling.
 
@@ -1006,6 +1107,7 @@ def conservative_diversion_window(
     - `content_unit`, `amount_unit`: units of the content and of the diverted amount.
     - `max_failed_share`: largest share of samples allowed to fail (no finite prediction, or
       an outlet not settled at the end of the longest scan); above it the window is refused.
+    - `programs`: how the compiled programs are run (see :func:`diversion_window`).
 
     The nominal window's scan is extended until its outlet has settled (see
     :func:`diversion_window`); the samples are scanned on every k-th of its times (k such that
@@ -1040,11 +1142,11 @@ def conservative_diversion_window(
         raise ValueError(f"method must be 'region' or 'quantile', got {method!r}.")
     if not 0.0 <= max_failed_share < 1.0:
         raise ValueError(f"max_failed_share must lie in [0, 1), got {max_failed_share!r}.")
-    nominal_rtd = unit_factory(jnp.atleast_1d(jnp.asarray(values, float)))
+    nominal_rtd = unit_factory(np.atleast_1d(np.asarray(values, float)))
     nominal = diversion_window(
         nominal_rtd, disturbance, times,
         target=target, lower=lower, upper=upper, flow=flow, content_unit=content_unit,
-        amount_unit=amount_unit,
+        amount_unit=amount_unit, programs=programs,
     )
     lags = _lags(disturbance)
     step = _sample_step(np.shape(times)[0])
@@ -1054,9 +1156,10 @@ def conservative_diversion_window(
             "samples", f"{samples:,} samples over {scan.shape[0]:,} scan times need about "
             f"{samples * scan.shape[0] * lags:.3g} model evaluations, more than the "
             f"{MAX_EVALUATIONS:.3g} allowed")
-    parameters = _draw(values, covariance, samples, seed, scale,
-                       coverage if method == "region" else None)
-    target, lower, upper = (jnp.asarray(x, float) for x in (target, lower, upper))
+    parameters = np.asarray(_draw(values, covariance, samples, seed, scale,
+                                  coverage if method == "region" else None, programs))
+    target, lower, upper = (np.asarray(x, float) for x in (target, lower, upper))
+    flow = flow if isinstance(flow, FlowSchedule) else np.asarray(flow, float)
     full = np.asarray(nominal.times)
     batch = min(_BATCH, parameters.shape[0])
     inverted = _inverted_unit(nominal_rtd)
@@ -1079,16 +1182,15 @@ def conservative_diversion_window(
     else:
         # The end each sample needs, first (a small program: F at the candidate ends), then
         # the windows of all samples on one scan to the latest end any of them needs.
-        horizon_args = jnp.asarray(ends)
-        settle = np.asarray(_sample_settle_jit(
-            unit_factory, _pad_rows(parameters, batch), disturbance, horizon_args,
-            float(lag_horizon(disturbance, horizon_args)), batch))[: parameters.shape[0]]
+        settle = np.asarray(run_program(
+            programs, "divert-sample-settle", _sample_settle, unit_factory,
+            _pad_rows(parameters, batch), disturbance, ends,
+            _lag_horizon_host(disturbance, ends), batch))[: parameters.shape[0]]
         scan = _settled_scan(settle, full, scan, step, samples, lags)
         starts, stops, diverts, finite, unsettled = _evaluate_samples(
             unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
-            float(lag_horizon(disturbance, jnp.asarray(scan))),  # static: a measured grid
-            None)
-    finite, unsettled = np.asarray(finite), np.asarray(unsettled)
+            _lag_horizon_host(disturbance, scan),  # static: a measured grid
+            None, programs)
     late = finite & ~(unsettled <= SETTLED)
     nonfinite = int((~finite).sum())
     unsettled_count = int(late.sum())
@@ -1106,10 +1208,10 @@ def conservative_diversion_window(
             "distribution reaches values where the model has no usable prediction, so no "
             "conservative window is given", failed, nonfinite, unsettled_count, samples)
     valid = finite & ~late
-    starts = jnp.where(valid, jnp.where(diverts, starts, jnp.inf), jnp.nan)
-    stops = jnp.where(valid, jnp.where(diverts, stops, -jnp.inf), jnp.nan)
-    kept_starts = np.asarray(starts)[valid]
-    kept_stops = np.asarray(stops)[valid]
+    starts = np.where(valid, np.where(diverts, starts, np.inf), np.nan)
+    stops = np.where(valid, np.where(diverts, stops, -np.inf), np.nan)
+    kept_starts = starts[valid]
+    kept_stops = stops[valid]
     if method == "region":
         start, stop = kept_starts.min(), kept_stops.max()
     else:
@@ -1118,22 +1220,25 @@ def conservative_diversion_window(
         stop = np.quantile(kept_stops, 1.0 - miss, method="higher")
     if not np.isfinite(start) or not stop >= start:
         start = stop = np.nan
-        amount = jnp.asarray(0.0)
+        amount = np.asarray(0.0)
     elif np.isinf(stop):
-        amount = jnp.asarray(np.inf)
-    else:
+        amount = np.asarray(np.inf)
+    elif isinstance(flow, FlowSchedule):
         amount = _amount(flow, jnp.asarray(start), jnp.asarray(stop))
+    else:
+        amount = np.asarray(flow * (stop - start))
+    # Host values stay NumPy arrays (turning them into JAX arrays would run a program each).
     return ConservativeDiversion(
         nominal,
-        jnp.asarray(start),
-        jnp.asarray(stop),
+        np.asarray(start),
+        np.asarray(stop),
         amount,
         float(coverage),
         method,
         parameters,
         starts,
         stops,
-        jnp.asarray(np.asarray(diverts)[valid].mean()),
+        np.asarray(np.asarray(diverts)[valid].mean()),
         int(valid.sum()),
         failed,
         float(scan[-1]),

@@ -21,7 +21,7 @@ from jax import Array
 from jax.typing import ArrayLike
 
 from axialmix._validation import require_finite
-from axialmix.line._unit import Unit
+from axialmix.line._unit import Unit, is_concrete
 from axialmix.network import FOUR_COMPARTMENT_CONNECTIONS, FOUR_COMPARTMENT_RATES
 from axialmix.network import four_compartment as _four_compartment_network
 
@@ -32,9 +32,10 @@ def _four_compartment(p: Mapping[str, Array], time_unit: str, name: str) -> Unit
     # The structure of a network with all rates 1; the rates of `p` in its connection order
     # (FOUR_COMPARTMENT_CONNECTIONS, which the preset keeps).
     network = _four_compartment_network(1.0, 1.0, 1.0, 1.0)
-    rates = jnp.stack([jnp.asarray(p[rate], float) for _, _, rate in
-                       FOUR_COMPARTMENT_CONNECTIONS])
-    return Unit.network(network, rates, jnp.stack([jnp.asarray(p["k_out"], float)]),
+    rates = [p[rate] for _, _, rate in FOUR_COMPARTMENT_CONNECTIONS]
+    # Concrete rates (a fitted unit) are gathered in NumPy, traced ones (samples) stacked.
+    stack = np.asarray if is_concrete(p) else jnp.stack
+    return Unit.network(network, stack(rates), stack([p["k_out"]]),
                         name=name or "four_compartment", time_unit=time_unit)
 
 
@@ -166,7 +167,7 @@ class FittedRTD(eqx.Module):
         missing = [n for n in names if n not in values]
         if missing:
             raise ValueError(f"the {model} model needs a value of {', '.join(missing)}.")
-        vector = jnp.asarray([float(values[n]) for n in names], float)
+        vector = np.asarray([float(values[n]) for n in names], float)
         free = tuple(free)
         if covariance is None:
             covariance = np.zeros((len(free), len(free)))
@@ -175,7 +176,7 @@ class FittedRTD(eqx.Module):
             covariance, covariance.T, rtol=1e-8, atol=0.0
         ):
             raise ValueError("covariance must be symmetric.")
-        return cls(model, vector, free, jnp.asarray(covariance), time_unit, name)
+        return cls(model, vector, free, covariance, time_unit, name)
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -186,12 +187,16 @@ class FittedRTD(eqx.Module):
     def free_values(self) -> Array:
         """The fitted values of the free parameters, in the order of :attr:`free`."""
         names = self.parameter_names
-        return jnp.stack([self.values[names.index(n)] for n in self.free]) if self.free else (
-            jnp.zeros(0))
+        index = [names.index(n) for n in self.free]
+        if is_concrete(self.values):
+            return np.asarray(self.values, float)[index]
+        return jnp.stack([self.values[i] for i in index]) if self.free else jnp.zeros(0)
 
     @property
     def standard_errors(self) -> Array:
         """Standard errors of the free parameters (square roots of the covariance diagonal)."""
+        if is_concrete(self.covariance):
+            return np.sqrt(np.clip(np.diagonal(np.asarray(self.covariance, float)), 0.0, None))
         return jnp.sqrt(jnp.clip(jnp.diagonal(self.covariance), 0.0, None))
 
     def __call__(self, free_values: ArrayLike) -> Unit:
@@ -206,8 +211,13 @@ class FittedRTD(eqx.Module):
         A :class:`Unit`.
         """
         names = self.parameter_names
-        free_values = jnp.atleast_1d(jnp.asarray(free_values, float))
-        parameters = {n: self.values[i] for i, n in enumerate(names)}
+        if is_concrete(free_values, self.values):  # a unit at given values: NumPy, no program
+            free_values = np.atleast_1d(np.asarray(free_values, float))
+            values = np.asarray(self.values, float)
+        else:
+            free_values = jnp.atleast_1d(jnp.asarray(free_values, float))
+            values = self.values
+        parameters = {n: values[i] for i, n in enumerate(names)}
         for k, n in enumerate(self.free):
             parameters[n] = free_values[k]
         return UNIT_BUILDERS[self.model][1](parameters, self.time_unit, self.name)

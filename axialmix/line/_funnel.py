@@ -12,9 +12,11 @@ from jax import Array
 from jax.typing import ArrayLike
 
 from axialmix._validation import require_finite, require_positive
+from axialmix.line._disturbance import grid_curve, has_grid
 from axialmix.line._line import Line, TabulatedRTD, as_evaluator
 from axialmix.line._models import EMPIRICAL
-from axialmix.line._unit import Unit
+from axialmix.line._programs import ProgramRunner, run_program
+from axialmix.line._unit import Unit, is_concrete
 
 __all__ = ["FunnelResult", "FunnelSettings", "funnel"]
 
@@ -98,7 +100,12 @@ def _worst_window(evaluator, duration: Array, starts: Array, base: Array, iterat
     def passed(u):
         return evaluator.cumulative(u + duration) - evaluator.cumulative(u)
 
-    candidates = evaluator.cumulative(starts + duration) - base
+    count = starts.shape[0]
+    if has_grid(evaluator):  # F on the shifted grid of starts, propagated (a network)
+        shifted = grid_curve(evaluator, "cumulative", duration, starts[1] - starts[0], count)
+    else:
+        shifted = evaluator.cumulative(starts + duration)
+    candidates = shifted - base
     best = jnp.argmax(candidates)
     last = starts.shape[0] - 1
     low = starts[jnp.maximum(best - 1, 0)]
@@ -121,13 +128,24 @@ def _worst_window(evaluator, duration: Array, starts: Array, base: Array, iterat
     return value, start + duration
 
 
-@eqx.filter_jit
-def _funnel_core(evaluator, durations: Array, reach: Array, grid_points: int, iterations: int):
+def _funnel_core(evaluator, durations: Array, reach: Array | None, grid_points: int,
+                 iterations: int):
+    """The worst fraction and its time for every duration (one program: the durations are
+    vmapped); `reach` None: the mean plus `reach_spreads` standard deviations, here."""
     starts = jnp.linspace(0.0, reach, grid_points)
-    base = evaluator.cumulative(starts)
+    if has_grid(evaluator):
+        base = grid_curve(evaluator, "cumulative", 0.0, starts[1] - starts[0], grid_points)
+    else:
+        base = evaluator.cumulative(starts)
     return jax.vmap(
         lambda duration: _worst_window(evaluator, duration, starts, base, iterations)
     )(durations)
+
+
+def _funnel_program(evaluator, durations, reach, settings: FunnelSettings):
+    if reach is None:
+        reach = _reach(evaluator, settings)
+    return _funnel_core(evaluator, durations, reach, settings.grid_points, settings.iterations)
 
 
 def funnel(
@@ -137,6 +155,7 @@ def funnel(
     *,
     magnitude_unit: str = "",
     settings: FunnelSettings | None = None,
+    programs: ProgramRunner | None = None,
 ) -> FunnelResult:
     """Funnel plot: the largest outlet deviation for each square disturbance (MODELS.md §8).
 
@@ -154,6 +173,8 @@ def funnel(
     - `magnitudes`: magnitudes (any unit, any sign), 1-D.
     - `magnitude_unit`: their unit, carried to the result.
     - `settings`: :class:`FunnelSettings`.
+    - `programs`: how the compiled program is run (a :data:`~axialmix.line.ProgramRunner`:
+      a cache across processes, say); None: compiled in this process.
 
     **Returns:**
 
@@ -163,15 +184,24 @@ def funnel(
     settings = FunnelSettings() if settings is None else settings
     require_positive("durations", durations)
     require_finite("magnitudes", magnitudes)
-    durations = jnp.atleast_1d(jnp.asarray(durations, float))
-    magnitudes = jnp.atleast_1d(jnp.asarray(magnitudes, float))
+    # Concrete grids stay NumPy (a JAX array made of each would be a program of its own).
+    array = np.asarray if is_concrete(durations, magnitudes) else jnp.asarray
+    durations = array(durations, float).reshape(-1) if np.ndim(durations) == 0 else array(
+        durations, float)
+    magnitudes = array(magnitudes, float).reshape(-1) if np.ndim(magnitudes) == 0 else array(
+        magnitudes, float)
     if durations.ndim != 1 or magnitudes.ndim != 1:
         raise ValueError("durations and magnitudes must be one-dimensional.")
-    reach = _reach(rtd, settings)
-    evaluator = as_evaluator(rtd, reach + jnp.max(durations))
-    fraction, worst_time = _funnel_core(
-        evaluator, durations, reach, settings.grid_points, settings.iterations
-    )
+    if isinstance(rtd, Line) and len(rtd.units) > 1:
+        # A line is tabulated to the reach it needs (a concrete horizon), then scanned.
+        reach = _reach(rtd, settings)
+        evaluator = as_evaluator(rtd, reach + jnp.max(durations))
+    else:  # the reach is found inside the program
+        reach, evaluator = None, as_evaluator(rtd, 0.0)
+    fraction, worst_time = run_program(programs, "funnel", _funnel_program, evaluator,
+                                       durations, reach, settings)
+    if array is np.asarray and is_concrete(fraction):
+        fraction, worst_time = np.asarray(fraction), np.asarray(worst_time)
     return FunnelResult(
         durations,
         magnitudes,

@@ -18,6 +18,7 @@ functions from :mod:`axialmix.analytic.transfer`, inverted exactly by
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 from typing import Any
@@ -57,6 +58,7 @@ from axialmix.network import (
     outlet_response,
     residence_time_moments,
 )
+from axialmix.network._expm import expm
 
 __all__ = [
     "CLOSED_CLOSED",
@@ -98,6 +100,12 @@ class UnitModel:
     - `numerical`: True when every time costs a numerical inversion (a contour integral,
       about 0.1 ms a time): many-sample work such as a diversion's covariance samples then
       tabulates the curves once per sample (:meth:`TabulatedRTD.from_unit`).
+    - `grid`: ``grid(kind, first, step, count, parameters, structure)``, the curve ``kind``
+      (``"exit_age"``, ``"cumulative"`` or ``"ramp"``) at the uniformly spaced times
+      ``first + j step``, ``j < count`` (time unit; `first` and `step` traceable, `count`
+      static), or None: the curve is then evaluated time by time. A model whose every time
+      costs a matrix exponential (a network) propagates along the grid instead, one
+      matrix product a time (scans of a diversion, funnel plots).
     """
 
     name: str
@@ -109,6 +117,7 @@ class UnitModel:
     moments: Callable[[Parameters, Any], tuple[Array, Array]] | None = None
     positive: tuple[str, ...] = ()
     numerical: bool = False
+    grid: Callable[..., Array] | None = None
 
 
 # ------------------------------------------------------------------ closed–closed ADM
@@ -324,17 +333,63 @@ def _sorted_call(function: Callable[[Array], Array], t: Array) -> Array:
     return jnp.zeros_like(flat).at[order].set(values).reshape(t.shape)
 
 
+def _network_system(kind: str, p: Parameters, network) -> tuple[Array, Array, Array]:
+    """``(A, b, c)`` with the curve ``kind`` of a network at t >= 0 equal to
+    ``c · expm(A t) b``: E from the generator and the feed split; F and the ramp response from
+    the generator augmented by one and two integrators of the feed (a unit step, a unit
+    ramp)."""
+    generator = generator_matrix(network, p["rates"], p["outflow_rates"])
+    n = network.n_compartments
+    split = jnp.asarray(network.feed_split, float)
+    outflow = jnp.zeros(n).at[network.outlet_indices].add(
+        jnp.asarray(p["outflow_rates"], float))
+    if kind == "exit_age":
+        return generator, split, outflow
+    size = n + (1 if kind == "cumulative" else 2)
+    matrix = jnp.zeros((size, size)).at[:n, :n].set(generator).at[:n, n].set(split)
+    if kind == "ramp":
+        matrix = matrix.at[n, n + 1].set(1.0)
+    return matrix, jnp.zeros(size).at[size - 1].set(1.0), jnp.zeros(size).at[:n].set(outflow)
+
+
+def _network_mask(kind: str, t: Array, values: Array) -> Array:
+    """E is 0 before t = 0, F and the ramp response up to t = 0."""
+    return jnp.where(t >= 0 if kind == "exit_age" else t > 0, values, 0.0)
+
+
+#: Times of a network's curve evaluated each by its own matrix exponential (root finding,
+#: the ends of a scan); longer arrays are propagated from one sorted time to the next.
+_DIRECT_TIMES = 16
+
+
+def _network_direct(kind: str, t: Array, p: Parameters, network) -> Array:
+    """The curve at a few times of any shape and order, one exponential a time."""
+    matrix, start, output = _network_system(kind, p, network)
+    t = jnp.asarray(t, float)
+    flat = t.reshape(-1)
+    values = jax.vmap(lambda lag: output @ (expm(matrix * lag) @ start))(
+        jnp.maximum(flat, 0.0))
+    return _network_mask(kind, flat, values).reshape(t.shape)
+
+
 def _network_exit_age(t, p, network):
+    if jnp.size(t) <= _DIRECT_TIMES:
+        return _network_direct("exit_age", t, p, network)
     return _sorted_call(lambda x: exit_age(network, x, p["rates"], p["outflow_rates"]), t)
 
 
 def _network_cumulative(t, p, network):
+    if jnp.size(t) <= _DIRECT_TIMES:
+        return _network_direct("cumulative", t, p, network)
     return _sorted_call(
         lambda x: cumulative_exit_age(network, x, p["rates"], p["outflow_rates"]), t
     )
 
 
 def _network_ramp(t, p, network):
+    if jnp.size(t) <= _DIRECT_TIMES:
+        return _network_direct("ramp", t, p, network)
+
     # The response to the inlet signal u(t) = t is ∫_0^t F; outlet_response integrates a
     # piecewise-linear inlet exactly (augmented matrix exponential), starting empty at 0.
     def ramp(x):
@@ -343,6 +398,53 @@ def _network_ramp(t, p, network):
         return outlet_response(network, times, times, p["rates"], p["outflow_rates"])[1:]
 
     return _sorted_call(ramp, t)
+
+
+def _grid_values(matrix: Array, start: Array, output: Array, first: Array, step: Array,
+                count: int) -> Array:
+    """``c · expm(A max(t_j, 0)) b`` at the uniformly spaced times ``t_j = first + j step``,
+    ``j < count``, by propagation: two exponentials and one matrix product a time.
+
+    The times from the first non-negative one on are propagated by powers of
+    ``M = expm(A step)``, in blocks of ``B`` about ``sqrt(count)`` times: ``M^0 … M^{B-1}``
+    once, then one block after another by ``M^B`` (a sequence of about ``2 sqrt(count)``
+    products, not ``count``). Times before it hold ``c · b`` (t clipped to 0).
+
+    **Arguments:**
+
+    - `matrix`, `start`, `output`: ``A (m, m)``, ``b (m,)``, ``c (m,)``.
+    - `first`, `step`: the first time and the spacing (time unit; traceable, step > 0).
+    - `count`: the number of times (static).
+
+    **Returns:** the values ``(count,)``.
+    """
+    first, step = jnp.asarray(first, float), jnp.asarray(step, float)
+    block = max(1, math.isqrt(max(count - 1, 0)) + 1)
+    blocks = -(-count // block)
+    # The first index whose time is not negative (a time of -1e-17 is the origin).
+    begin = jnp.clip(jnp.ceil(-first / step), 0, count).astype(int)
+    state = expm(matrix * jnp.maximum(first + begin * step, 0.0)) @ start
+    transition = expm(matrix * step)
+
+    def power(current, _):
+        return transition @ current, current
+
+    jump, powers = jax.lax.scan(power, jnp.eye(matrix.shape[0]), None, length=block)
+
+    def advance(current, _):
+        return jump @ current, powers @ current
+
+    _, states = jax.lax.scan(advance, state, None, length=blocks)
+    propagated = (states @ output).reshape(-1)
+    offset = jnp.arange(count) - begin
+    return jnp.where(offset >= 0, propagated[jnp.clip(offset, 0, blocks * block - 1)],
+                     output @ start)
+
+
+def _network_grid(kind, first, step, count, p, network):
+    matrix, start, output = _network_system(kind, p, network)
+    values = _grid_values(matrix, start, output, first, step, count)
+    return _network_mask(kind, first + step * jnp.arange(count), values)
 
 
 def _network_transfer(s, p, network):
@@ -375,6 +477,7 @@ NETWORK = UnitModel(
     ramp=_network_ramp,
     transfer_function=_network_transfer,
     moments=_network_moments,
+    grid=_network_grid,
 )
 """A continuous compartment network (structure: the network; parameters: its rate arrays)."""
 

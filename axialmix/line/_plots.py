@@ -7,7 +7,8 @@ from collections.abc import Sequence
 import numpy as np
 from jax.typing import ArrayLike
 
-__all__ = ["FUNNEL_MAP_POINTS", "plot_diversion", "plot_funnel", "plot_line", "plot_response"]
+__all__ = ["FUNNEL_MAP_POINTS", "funnel_map_durations", "plot_diversion", "plot_funnel",
+           "plot_line", "plot_response"]
 
 _CURVES = {"exit_age": "E(t)", "cumulative": "F(t)"}
 
@@ -89,8 +90,21 @@ def _window_text(start: float, stop: float, amount: float, time_unit: str,
     return f"{start:.4g} to {stop_text}{amount_text}"
 
 
+def funnel_map_durations(durations: ArrayLike) -> np.ndarray:
+    """The durations :func:`plot_funnel` draws its map on: :data:`FUNNEL_MAP_POINTS`
+    log-spaced over the range of `durations` and a little beyond (time unit).
+
+    **Arguments:** `durations`: the durations of a funnel (positive, time unit).
+
+    **Returns:** the map's durations ``(FUNNEL_MAP_POINTS,)``.
+    """
+    durations = np.asarray(durations, float)
+    return np.geomspace(float(durations.min()) / 1.5, float(durations.max()) * 1.5,
+                        FUNNEL_MAP_POINTS)
+
+
 def plot_funnel(result, *, ax=None, rtd=None, limit: float | None = None,
-                title: str | None = None, levels: int = 24):
+                title: str | None = None, levels: int = 24, fine=None):
     """Funnel plot: the largest outlet deviation over duration (x, log) and magnitude (y).
 
     With `rtd` the map is drawn smooth on a fine grid, whatever grid `result` was computed
@@ -112,12 +126,14 @@ def plot_funnel(result, *, ax=None, rtd=None, limit: float | None = None,
       None: no contour).
     - `title`: the axes title (None: a description of the plot).
     - `levels`: number of filled contour levels.
+    - `fine`: the funnel of the same RTD on :func:`funnel_map_durations` of `result`'s
+      durations, computed beforehand (with `result`, in one program, say); the map is then
+      drawn from it and `rtd` is not needed.
 
     **Returns:**
 
     The axes.
     """
-    from axialmix.line._funnel import funnel
 
     ax = _axes(ax)
     durations = np.asarray(result.durations, float)
@@ -127,15 +143,21 @@ def plot_funnel(result, *, ax=None, rtd=None, limit: float | None = None,
     if limit is not None and not (np.isfinite(limit) and limit > 0):
         raise ValueError(f"limit must be a positive number, got {limit!r}.")
     low, high = float(durations.min()), float(durations.max())
-    if rtd is not None and high > low:
-        map_durations = np.geomspace(low / 1.5, high * 1.5, FUNNEL_MAP_POINTS)
+    smooth = (rtd is not None or fine is not None) and high > low
+    if smooth and fine is not None:
+        map_durations = np.asarray(fine.durations, float)
+        fraction = np.asarray(fine.max_fraction, float)
+    elif smooth:
+        from axialmix.line._funnel import funnel
+
+        map_durations = funnel_map_durations(durations)
         fraction = np.asarray(funnel(rtd, map_durations, np.ones(1)).max_fraction)
     else:
         order = np.argsort(durations)
         map_durations, fraction = durations[order], np.asarray(result.max_fraction)[order]
     m_low = 1.1 * min(0.0, float(magnitudes.min()))
     m_high = 1.1 * max(0.0, float(magnitudes.max()))
-    if rtd is not None or magnitudes.size > 1:
+    if rtd is not None or fine is not None or magnitudes.size > 1:
         map_magnitudes = np.linspace(m_low, m_high, FUNNEL_MAP_POINTS)
     else:
         map_magnitudes = magnitudes

@@ -46,6 +46,7 @@ import re
 
 from fitting.cli._outputs import OutputError, OutputFolder, add_out_option, render_png
 from fitting.cli.funnel import (
+    ExportedPrograms,
     OptionError,
     add_model_options,
     model_inputs,
@@ -252,11 +253,14 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from axialmix._files import json_text
-    from axialmix.line import Disturbance, conservative_diversion_window, diversion_window
-    from fitting.solve import enable_compilation_cache
+    from axialmix.line import (
+        Disturbance,
+        conservative_diversion_window,
+        diversion_window,
+        rtd_moments,
+    )
 
-    enable_compilation_cache()  # compiled programs kept on disk for the next run
-
+    programs = ExportedPrograms()  # compiled programs kept on disk for the next run
     unit = fitted.unit()
     time_unit, content_unit = fitted.time_unit, args.content_unit
     units = {"value_unit": content_unit, "time_unit": time_unit}
@@ -277,7 +281,8 @@ def run(args: argparse.Namespace) -> int:
         disturbance = Disturbance.trace(trace_times, contents - args.target, **units)
         first, last = float(trace_times[0]), float(trace_times[-1])
         disturbance_record = {"kind": "trace", "file": args.trace, "samples": int(contents.size)}
-    mean, spread = float(unit.mean()), float(np.sqrt(unit.variance()))
+    mean, variance = rtd_moments(unit, programs=programs)
+    spread = math.sqrt(variance) if variance >= 0 else math.nan
     source = args.model if description.get("source") else "--model"
     until = args.until if args.until is not None else last + mean + 10 * spread
     if not (math.isfinite(mean) and math.isfinite(spread) and math.isfinite(until)):
@@ -298,7 +303,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         nominal = diversion_window(unit, disturbance, times, flow=flow,
                                    content_unit=content_unit, amount_unit=amount_unit,
-                                   **limits)
+                                   programs=programs, **limits)
     except DiversionTooLarge as error:
         return _exits.error_line(_COMMAND, f"--points {args.points}: {error}")
     except ValueError as error:
@@ -316,7 +321,7 @@ def run(args: argparse.Namespace) -> int:
                 fitted, values, covariance, disturbance, times, flow=flow,
                 coverage=args.coverage, method=args.method, samples=args.samples,
                 seed=args.seed, scale=scale, content_unit=content_unit,
-                amount_unit=amount_unit, **limits)
+                amount_unit=amount_unit, programs=programs, **limits)
         except DiversionTooLarge as error:
             return _exits.error_line(_COMMAND, f"--{error.option} "
                                      f"{getattr(args, error.option)}: {error}")
@@ -335,7 +340,7 @@ def run(args: argparse.Namespace) -> int:
         return _exits.error_line(_COMMAND, f"{source}: the window has no finite start")
     outlet = np.asarray(nominal.outlet)
     print(f"diversion for {description['model']} ({unit.model.name}), mean residence time "
-          f"{float(unit.mean()):.4g} {time_unit}; limits [{lower:g}, {upper:g}] {content_unit}"
+          f"{mean:.4g} {time_unit}; limits [{lower:g}, {upper:g}] {content_unit}"
           f", outlet content from {outlet.min():.4g} to {outlet.max():.4g}")
     scan_end = float(nominal.times[-1])
     if scan_end > until * (1 + 1e-12):

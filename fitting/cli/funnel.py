@@ -37,6 +37,7 @@ from fitting.cli._outputs import OutputError, OutputFolder, add_out_option, rend
 
 __all__ = [
     "LINE_MODELS",
+    "ExportedPrograms",
     "OptionError",
     "add_model_options",
     "add_parser",
@@ -69,6 +70,63 @@ LINE_MODELS = {
 
 class OptionError(Exception):
     """Bad command-line input; the message is one line, without the program prefix."""
+
+
+class _Exported:
+    """A line program run from its exported form (:class:`axialmix.line.CompiledProgram`)."""
+
+    def __init__(self, executable):
+        self.executable = executable
+
+    def __call__(self, *arguments):
+        import equinox as eqx
+        import jax
+
+        return self.executable(*jax.tree_util.tree_leaves(eqx.filter(arguments, eqx.is_array)))
+
+    def temporary_bytes(self) -> int:
+        analysis = self.executable.memory_analysis()
+        return int(getattr(analysis, "temp_size_in_bytes", 0) or 0) if analysis else 0
+
+
+class ExportedPrograms:
+    """The :data:`axialmix.line.ProgramRunner` of ``funnel`` and ``divert``: the line's
+    programs go through the fit's cache of compiled programs (:class:`fitting.solve.Program`
+    after :func:`fitting.solve.enable_compilation_cache`, called here): each is exported with
+    :mod:`jax.export` to the user's cache folder under its
+    :func:`axialmix.line.program_identity` and shapes, and a later process loads it from
+    there (no tracing) and its compiled form from JAX's persistent cache (no compiling).
+    A program without an identity (a value that cannot be named across processes) is
+    compiled in this process only."""
+
+    def __init__(self) -> None:
+        from fitting.solve import enable_compilation_cache
+
+        enable_compilation_cache()
+        self._programs: dict = {}
+
+    def __call__(self, name: str, function, arguments: tuple):
+        import equinox as eqx
+        import jax
+
+        from axialmix.line import compile_program, program_identity
+        from fitting.solve import Program
+
+        identity = program_identity(function, arguments)
+        if identity is None:
+            return compile_program(None, name, function, arguments)
+        dynamic, static = eqx.partition(arguments, eqx.is_array)
+        leaves, structure = jax.tree_util.tree_flatten(dynamic)
+        program = self._programs.get(identity)
+        if program is None:
+            def flat(*values):
+                return function(*eqx.combine(jax.tree_util.tree_unflatten(structure, values),
+                                             static))
+
+            program = self._programs[identity] = Program(flat, name,
+                                                         ("axialmix.line", *identity))
+        executable, _ = program.executable(leaves)
+        return _Exported(executable)
 
 
 def add_model_options(parser: argparse.ArgumentParser) -> None:
@@ -392,28 +450,39 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from axialmix._files import json_text
-    from axialmix.line import funnel
-    from fitting.solve import enable_compilation_cache
+    from axialmix.line import FunnelResult, funnel, funnel_map_durations, rtd_moments
 
-    enable_compilation_cache()  # compiled programs kept on disk for the next run
-
+    programs = ExportedPrograms()  # compiled programs kept on disk for the next run
     unit = fitted.unit()
-    result = funnel(unit, np.asarray(durations), np.asarray(magnitudes),
-                    magnitude_unit=args.magnitude_unit)
+    durations = np.asarray(durations, float)
+    count = durations.size
+    # The table's durations and, for the plot, its map's, in one program.
+    drawn = args.out is not None and durations.max() > durations.min()
+    asked = np.concatenate([durations, funnel_map_durations(durations)]) if drawn else durations
+    both = funnel(unit, asked, np.asarray(magnitudes, float),
+                  magnitude_unit=args.magnitude_unit, programs=programs)
+
+    def part(columns):
+        return FunnelResult(both.durations[columns], both.magnitudes,
+                            both.max_deviation[:, columns], both.max_fraction[columns],
+                            both.worst_time[columns], both.time_unit, both.magnitude_unit)
+
+    result = part(slice(0, count))
+    fine = part(slice(count, None)) if drawn else None
+    mean, _ = rtd_moments(unit, programs=programs)
     values = ", ".join(f"{name}={value:g}" for name, value in
                        zip(fitted.parameter_names, fitted.values.tolist(), strict=True))
-    if not (np.all(np.isfinite(np.asarray(result.max_deviation)))
-            and math.isfinite(float(unit.mean()))):
+    if not (np.all(np.isfinite(np.asarray(result.max_deviation))) and math.isfinite(mean)):
         return _exits.error_line(_COMMAND, f"the model gives no finite funnel at {values}")
     print(f"funnel of {description['model']} ({unit.model.name}), mean residence time "
-          f"{float(unit.mean()):.4g} {unit.time_unit}: largest outlet deviation, rows "
+          f"{mean:.4g} {unit.time_unit}: largest outlet deviation, rows "
           f"magnitudes, columns durations")
     print(_table(result))
     if args.out is None:
         return _exits.OK
     record = {
         **description,
-        "mean_residence_time": float(unit.mean()),
+        "mean_residence_time": mean,
         **result.to_dict(),
         "rows": "magnitudes",
         "columns": "durations",
@@ -427,7 +496,7 @@ def run(args: argparse.Namespace) -> int:
     title = (f"Funnel of {description['model']}: largest outlet deviation "
              f"({args.magnitude_unit})")
     png = render_png(lambda ax: plot_funnel(result, ax=ax, rtd=unit, limit=args.limit,
-                                            title=title), (7, 4.5))
+                                            title=title, fine=fine), (7, 4.5))
     for path in out.commit({"funnel.json": json_text(record), "funnel.png": png}):
         print(f"wrote {path}")
     return _exits.OK
