@@ -40,6 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from axialmix.analytic.panels import LONG_CURVE
 from fitting.data import Curve, as_curve
 from fitting.engine import ErrorPlan, fit_chunk_arrays
 from fitting.losses import (
@@ -334,8 +335,40 @@ def _fit_one(model, data, params, weights, settings: FitSettings) -> FitResult:
 
 def _fit_final(model, curves, params, weights, settings: FitSettings) -> list[FitResult]:
     """The fits of :func:`_fit_batch` with their intervals widened to hold the other optima
-    the multi-start found (:func:`fitting.optima.with_other_optima`)."""
-    return [with_other_optima(r) for r in _fit_batch(model, curves, params, weights, settings)]
+    the multi-start found (:func:`fitting.optima.with_other_optima`) and, for long curves,
+    the model's evaluation checked on every point (:func:`_with_evaluation_check`)."""
+    return [_with_evaluation_check(with_other_optima(r))
+            for r in _fit_batch(model, curves, params, weights, settings)]
+
+
+#: Largest deviation of an interpolated model from the exact one, as a share of the peak,
+#: at which a fit's numbers still count as the exact model's (the interpolation itself is
+#: about 1e-13; each evaluation already falls back to the exact one past 1e-11 between nodes).
+EVALUATION_TOLERANCE = 1e-10
+
+
+def _with_evaluation_check(result: FitResult) -> FitResult:
+    """A long curve's fit with the model's interpolated evaluation measured against the exact
+    one on every point at the fitted values (the model's ``long_curve_check``); a deviation
+    past :data:`EVALUATION_TOLERANCE` of the peak makes the fit unsuccessful, saying why."""
+    base = getattr(result.model, "base", result.model)
+    inlet = getattr(result.model, "inlet", None)
+    check = getattr(base, "long_curve_check", None)
+    if (check is None or (inlet is not None and inlet.kind != "pulse")
+            or padded_length(len(result.curve)) < LONG_CURVE):
+        return result
+    shift = result.values.get("dead_time", 0.0)
+    largest, peak = check(result.curve.time - shift,
+                          {n: result.values[n] for n in base.parameter_names})
+    amplitude = abs(result.values.get("amplitude", 1.0))
+    found = (largest * amplitude, peak * amplitude)
+    if largest <= EVALUATION_TOLERANCE * peak:
+        return dataclasses.replace(result, evaluation_check=found)
+    return dataclasses.replace(
+        result, evaluation_check=found, success=False,
+        message=(f"{result.message}; but the model's interpolated evaluation deviates from the "
+                 f"exact one by {largest / peak:.2g} of the peak at the fitted values (more "
+                 f"than {EVALUATION_TOLERANCE:g}): these numbers are not the exact model's"))
 
 
 def _with_absolute_errors(result: FitResult) -> FitResult:

@@ -188,6 +188,13 @@ def identifiability_statements(result: FitResult) -> list[str]:
             for name in optimum.outside:
                 if name not in undetermined:
                     undetermined.append(name)
+    if result.evaluation_check is not None:
+        largest, peak = result.evaluation_check
+        statements.append(
+            f"The model was evaluated on Chebyshev panels of exact values ({len(result.curve):,} "
+            f"points); at the fitted values it is at most {largest / peak:.1g} of the peak from "
+            "the exact model on every point." if peak > 0 else
+            "The model was evaluated on Chebyshev panels of exact values.")
     verdict = result.lack_of_fit
     if verdict.tested:
         statements.append(verdict.statement)
@@ -438,6 +445,8 @@ def fit_record(
     accuracy = solver_accuracy(result)
     if accuracy is not None:
         record["solver_accuracy"] = accuracy
+    if "evaluation_check" in base:
+        record["evaluation_check"] = base["evaluation_check"]
     if grid is not None:
         record["grid_search"] = grid.to_dict()
     return record

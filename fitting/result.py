@@ -190,6 +190,11 @@ class FitResult:
     #: (``None``: `ci95` is that interval).
     linearised_ci95: dict[str, tuple[float, float] | None] | None = field(default=None,
                                                                           repr=False)
+    #: For a curve long enough that the model is evaluated on interpolation panels (a model
+    #: with a ``long_curve_check`` hook): ``(largest deviation from the exact model over
+    #: every point at the fitted values, peak)`` in the curve's unit (``None``: exact
+    #: everywhere, no check needed).
+    evaluation_check: tuple[float, float] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         for name in ("weights", "predicted", "residuals", "jacobian", "start_losses",
@@ -440,7 +445,9 @@ class FitResult:
             "compile_time": self.compile_time,
             "lack_of_fit": self.lack_of_fit.to_dict(),
             "error_model": None if self.error_model is None else self.error_model.to_dict(),
-        }
+        } | ({} if self.evaluation_check is None else {"evaluation_check": {
+            "largest_deviation": number(self.evaluation_check[0]),
+            "peak": number(self.evaluation_check[1]), "points": len(self.curve)}})
 
     def restart_parameters(self) -> Parameters:
         """This fit's settings with the fitted values as start values (kept inside bounds),

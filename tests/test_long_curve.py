@@ -192,3 +192,35 @@ def test_long_curve_fit_through_the_command_line_matches_the_exact_evaluation(tm
     values = {n: record["parameters"][n]["value"] for n in ("tau", "peclet")}
     largest, peak = adm.long_curve_check(t, values)
     assert largest <= 1e-10 * peak
+    # The fit made the same check itself, in the curve's unit, and says so.
+    check = record["evaluation_check"]
+    amplitude = record["parameters"]["amplitude"]["value"]
+    assert check["points"] == t.size
+    assert check["peak"] == pytest.approx(peak * amplitude, rel=1e-9)
+    # Both deviations are round-off (about 1e-14 of the peak), so they agree only in size.
+    assert check["largest_deviation"] <= 1e-10 * check["peak"]
+    assert record["converged"]
+    assert any("Chebyshev panels" in line for line in record["identifiability"])
+
+
+def test_a_long_curve_whose_interpolated_model_misses_the_exact_one_is_not_a_success():
+    # The fit's every-point check, made to fail: the fit is not called a success and its
+    # message says why (never a silent fallback).
+    import dataclasses
+
+    import fitting.fit as fitting_fit
+    from fitting.data import Curve
+    from fitting.measurement import Inlet, measured
+    from fitting.models import get_model
+
+    t = np.linspace(0.0, 100.0, 9_000)  # padded to 16,384: panels
+    y = np.asarray(exit_age_closed(t, 20.0, 10.0))
+    y = y + 0.01 * y.max() * np.random.default_rng(3).standard_normal(t.size)
+    adm = get_model("adm")
+    missing = dataclasses.replace(adm, long_curve_check=lambda t, p: (1e-6, 1.0))
+    result = fitting_fit.fit(measured(missing, Inlet.pulse(), ()), Curve("c", t, y),
+                             errors="absolute")
+    assert result.evaluation_check == pytest.approx((1e-6 * result.values["amplitude"],
+                                                     result.values["amplitude"]))
+    assert not result.success
+    assert "not the exact model's" in result.message
