@@ -595,16 +595,30 @@ def chi_square_quantile(dof: int, probability: float) -> float:
     return 2.0 * middle
 
 
-def _draw(values, covariance, samples, seed, scale, region, programs=None):
-    """Parameter vectors: normal draws, or (region) points filling the confidence ellipsoid."""
+def _draw_arguments(values, covariance, samples, seed, scale, region) -> tuple:
+    """The arguments of :func:`_draw_program` (checked)."""
     if not isinstance(samples, int) or samples < 1:
         raise ValueError(f"samples must be a positive integer, got {samples!r}.")
     values, root = _distribution(values, covariance, scale)
     radius = None
     if region is not None:
         radius = math.sqrt(chi_square_quantile(values.shape[0], region))
-    return run_program(programs, "divert-draw", _draw_program, values, root,
-                       np.asarray(seed, np.int64), samples, scale, radius)
+    return values, root, np.asarray(seed, np.int64), samples, scale, radius
+
+
+def _draw(values, covariance, samples, seed, scale, region, programs=None):
+    """Parameter vectors: normal draws, or (region) points filling the confidence ellipsoid."""
+    return run_program(programs, "divert-draw", _draw_program,
+                       *_draw_arguments(values, covariance, samples, seed, scale, region))
+
+
+def _drawn_settle(draw: tuple, unit_factory, disturbance, ends, horizon, batch):
+    """The draws and ``1 - F`` of each at the candidate ends (one program: the samples'
+    settle check right after they are drawn)."""
+    parameters = _draw_program(*draw)
+    padding = -parameters.shape[0] % batch
+    padded = jnp.concatenate([parameters, jnp.repeat(parameters[:1], padding, axis=0)])
+    return parameters, _sample_settle(unit_factory, padded, disturbance, ends, horizon, batch)
 
 
 def _draw_program(values, root, seed, samples, scale, radius):
@@ -1156,19 +1170,29 @@ def conservative_diversion_window(
             "samples", f"{samples:,} samples over {scan.shape[0]:,} scan times need about "
             f"{samples * scan.shape[0] * lags:.3g} model evaluations, more than the "
             f"{MAX_EVALUATIONS:.3g} allowed")
-    parameters = np.asarray(_draw(values, covariance, samples, seed, scale,
-                                  coverage if method == "region" else None, programs))
+    draw = _draw_arguments(values, covariance, samples, seed, scale,
+                           coverage if method == "region" else None)
     target, lower, upper = (np.asarray(x, float) for x in (target, lower, upper))
     flow = flow if isinstance(flow, FlowSchedule) else np.asarray(flow, float)
     full = np.asarray(nominal.times)
-    batch = min(_BATCH, parameters.shape[0])
+    batch = min(_BATCH, samples)
     inverted = _inverted_unit(nominal_rtd)
+    ends = _candidate_ends(full)
+    if inverted is None:
+        # The draws and the end each sample needs, first (a small program: F at the
+        # candidate ends), then the windows of all samples on one scan to the latest end
+        # any of them needs.
+        parameters, settle = run_program(
+            programs, "divert-draw-settle", _drawn_settle, draw, unit_factory, disturbance,
+            ends, _lag_horizon_host(disturbance, ends), batch)
+        parameters, settle = np.asarray(parameters), np.asarray(settle)[:samples]
+    else:
+        parameters = np.asarray(run_program(programs, "divert-draw", _draw_program, *draw))
     table_intervals = table_step = table_record = None
     table_difference = float("nan")
     if inverted is not None:
         table_intervals, table_step, table_difference = _choose_table(
             inverted, nominal, disturbance, target, lower, upper)
-    ends = _candidate_ends(full)
     if table_intervals is not None:
         # Each sample is evaluated on a table of its values, on the scan to the latest end
         # any of them needs (found first, exactly).
@@ -1180,12 +1204,11 @@ def conservative_diversion_window(
             unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
             horizon, tables)
     else:
-        # The end each sample needs, first (a small program: F at the candidate ends), then
-        # the windows of all samples on one scan to the latest end any of them needs.
-        settle = np.asarray(run_program(
-            programs, "divert-sample-settle", _sample_settle, unit_factory,
-            _pad_rows(parameters, batch), disturbance, ends,
-            _lag_horizon_host(disturbance, ends), batch))[: parameters.shape[0]]
+        if inverted is not None:  # an inverted unit without a close enough table
+            settle = np.asarray(run_program(
+                programs, "divert-sample-settle", _sample_settle, unit_factory,
+                _pad_rows(parameters, batch), disturbance, ends,
+                _lag_horizon_host(disturbance, ends), batch))[:samples]
         scan = _settled_scan(settle, full, scan, step, samples, lags)
         starts, stops, diverts, finite, unsettled = _evaluate_samples(
             unit_factory, parameters, disturbance, scan, target, lower, upper, flow,

@@ -64,6 +64,9 @@ class FunnelResult(eqx.Module):
       a disturbance that reaches the outlet at its worst moment.
     - `worst_time`: time after the disturbance starts at which that happens (time unit).
     - `time_unit`, `magnitude_unit`: units.
+    - `mean_residence_time`: the mean residence time of the RTD (time unit), found with
+      the funnel (its search reaches past it by `reach_spreads` standard deviations), or
+      None.
     """
 
     durations: Array
@@ -73,6 +76,7 @@ class FunnelResult(eqx.Module):
     worst_time: Array
     time_unit: str = eqx.field(static=True, default="s")
     magnitude_unit: str = eqx.field(static=True, default="")
+    mean_residence_time: Array | None = None
 
     def to_dict(self) -> dict:
         """Plain JSON-ready dict: ``max_deviation`` rows are magnitudes, columns durations."""
@@ -143,9 +147,12 @@ def _funnel_core(evaluator, durations: Array, reach: Array | None, grid_points: 
 
 
 def _funnel_program(evaluator, durations, reach, settings: FunnelSettings):
+    """The worst fractions and times and the RTD's mean, one program."""
     if reach is None:
         reach = _reach(evaluator, settings)
-    return _funnel_core(evaluator, durations, reach, settings.grid_points, settings.iterations)
+    fraction, worst_time = _funnel_core(evaluator, durations, reach, settings.grid_points,
+                                        settings.iterations)
+    return fraction, worst_time, evaluator.mean()
 
 
 def funnel(
@@ -198,10 +205,11 @@ def funnel(
         evaluator = as_evaluator(rtd, reach + jnp.max(durations))
     else:  # the reach is found inside the program
         reach, evaluator = None, as_evaluator(rtd, 0.0)
-    fraction, worst_time = run_program(programs, "funnel", _funnel_program, evaluator,
-                                       durations, reach, settings)
+    fraction, worst_time, mean = run_program(programs, "funnel", _funnel_program, evaluator,
+                                             durations, reach, settings)
     if array is np.asarray and is_concrete(fraction):
-        fraction, worst_time = np.asarray(fraction), np.asarray(worst_time)
+        fraction, worst_time, mean = np.asarray(fraction), np.asarray(worst_time), np.asarray(
+            mean)
     return FunnelResult(
         durations,
         magnitudes,
@@ -210,4 +218,5 @@ def funnel(
         worst_time,
         rtd.time_unit,
         magnitude_unit,
+        mean,
     )

@@ -403,12 +403,14 @@ def _network_ramp(t, p, network):
 def _grid_values(matrix: Array, start: Array, output: Array, first: Array, step: Array,
                 count: int) -> Array:
     """``c · expm(A max(t_j, 0)) b`` at the uniformly spaced times ``t_j = first + j step``,
-    ``j < count``, by propagation: two exponentials and one matrix product a time.
+    ``j < count``, by propagation: two exponentials and about ``m`` products a time.
 
     The times from the first non-negative one on are propagated by powers of
-    ``M = expm(A step)``, in blocks of ``B`` about ``sqrt(count)`` times: ``M^0 … M^{B-1}``
-    once, then one block after another by ``M^B`` (a sequence of about ``2 sqrt(count)``
-    products, not ``count``). Times before it hold ``c · b`` (t clipped to 0).
+    ``M = expm(A step)``, in blocks of ``B`` about ``sqrt(count)`` times: the rows
+    ``c M^0 … c M^{B-1}`` and ``M^B`` once, then the state from one block to the next by
+    ``M^B``, each value the product of a row and a block's state (a sequence of about
+    ``2 sqrt(count)`` products, not ``count``). Times before it hold ``c · b`` (t clipped
+    to 0).
 
     **Arguments:**
 
@@ -426,16 +428,18 @@ def _grid_values(matrix: Array, start: Array, output: Array, first: Array, step:
     state = expm(matrix * jnp.maximum(first + begin * step, 0.0)) @ start
     transition = expm(matrix * step)
 
-    def power(current, _):
-        return transition @ current, current
+    def power(carry, _):
+        row, current = carry  # c M^r and M^r
+        return (row @ transition, transition @ current), row
 
-    jump, powers = jax.lax.scan(power, jnp.eye(matrix.shape[0]), None, length=block)
+    (_, jump), rows = jax.lax.scan(power, (output, jnp.eye(matrix.shape[0])), None,
+                                   length=block)
 
     def advance(current, _):
-        return jump @ current, powers @ current
+        return jump @ current, current
 
     _, states = jax.lax.scan(advance, state, None, length=blocks)
-    propagated = (states @ output).reshape(-1)
+    propagated = (states @ rows.T).reshape(-1)  # [q, r]: c M^r M^(qB) x
     offset = jnp.arange(count) - begin
     return jnp.where(offset >= 0, propagated[jnp.clip(offset, 0, blocks * block - 1)],
                      output @ start)

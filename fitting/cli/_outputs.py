@@ -30,7 +30,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 __all__ = ["MARKER_PREFIX", "OutputError", "OutputFolder", "add_out_option", "refuse_other_results",
-           "register_guard", "render_png"]
+           "preload_plotting", "register_guard", "render_png"]
 
 #: Name prefix of the marker file a result set leaves in its folder (``.axialmix-funnel``).
 MARKER_PREFIX = ".axialmix-"
@@ -220,11 +220,48 @@ def add_out_option(parser, files: str, replaced: Iterable[str] = ()) -> None:
         parser.add_argument(option, action=_Replaced, help=argparse.SUPPRESS)
 
 
-def render_png(draw, size: tuple[float, float]) -> bytes:
-    """Draw one plot with `draw(ax)` on a figure of `size` inches; returns the PNG bytes
-    (matplotlib is imported here, only when a plot is asked for)."""
+def _load_plotting() -> None:
     import io
 
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure = plt.figure(figsize=(1, 1))
+    try:
+        figure.savefig(io.BytesIO(), format="png")  # fonts and the renderer loaded
+    finally:
+        plt.close(figure)
+
+
+_PLOTTING: threading.Thread | None = None
+
+
+def preload_plotting() -> None:
+    """Import matplotlib (Agg) and draw an empty figure in a background thread, so that a
+    plot asked for later (:func:`render_png`) finds them loaded: a command that will draw
+    calls it first, and the import runs while the main thread waits on compiled programs
+    (which release the interpreter). Once a process; a failure there is left for
+    :func:`render_png` to meet."""
+    global _PLOTTING
+    if _PLOTTING is None:
+        def load():
+            with contextlib.suppress(Exception):
+                _load_plotting()
+
+        _PLOTTING = threading.Thread(target=load, name="preload-plotting", daemon=True)
+        _PLOTTING.start()
+
+
+def render_png(draw, size: tuple[float, float]) -> bytes:
+    """Draw one plot with `draw(ax)` on a figure of `size` inches; returns the PNG bytes
+    (matplotlib is imported here, only when a plot is asked for, unless
+    :func:`preload_plotting` has begun)."""
+    import io
+
+    if _PLOTTING is not None:
+        _PLOTTING.join()
     import matplotlib
 
     matplotlib.use("Agg")

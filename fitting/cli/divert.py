@@ -44,7 +44,13 @@ import argparse
 import math
 import re
 
-from fitting.cli._outputs import OutputError, OutputFolder, add_out_option, render_png
+from fitting.cli._outputs import (
+    OutputError,
+    OutputFolder,
+    add_out_option,
+    preload_plotting,
+    render_png,
+)
 from fitting.cli.funnel import (
     ExportedPrograms,
     OptionError,
@@ -249,6 +255,8 @@ def run(args: argparse.Namespace) -> int:
     except (OptionError, OutputError) as error:
         return _exits.error_line(_COMMAND, str(error))
     out = OutputFolder(_COMMAND, args.out, FILES, inputs=[*model_inputs(args), args.trace])
+    if args.out is not None:
+        preload_plotting()  # matplotlib loads while the programs run
 
     import numpy as np
 

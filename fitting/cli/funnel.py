@@ -33,7 +33,13 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from fitting.cli._outputs import OutputError, OutputFolder, add_out_option, render_png
+from fitting.cli._outputs import (
+    OutputError,
+    OutputFolder,
+    add_out_option,
+    preload_plotting,
+    render_png,
+)
 
 __all__ = [
     "LINE_MODELS",
@@ -446,11 +452,13 @@ def run(args: argparse.Namespace) -> int:
         fitted, description = rtd_from_options(args)
     except (OptionError, OutputError) as error:
         return _exits.error_line(_COMMAND, str(error))
+    if args.out is not None:
+        preload_plotting()  # matplotlib loads while the program runs
 
     import numpy as np
 
     from axialmix._files import json_text
-    from axialmix.line import FunnelResult, funnel, funnel_map_durations, rtd_moments
+    from axialmix.line import FunnelResult, funnel, funnel_map_durations
 
     programs = ExportedPrograms()  # compiled programs kept on disk for the next run
     unit = fitted.unit()
@@ -465,11 +473,12 @@ def run(args: argparse.Namespace) -> int:
     def part(columns):
         return FunnelResult(both.durations[columns], both.magnitudes,
                             both.max_deviation[:, columns], both.max_fraction[columns],
-                            both.worst_time[columns], both.time_unit, both.magnitude_unit)
+                            both.worst_time[columns], both.time_unit, both.magnitude_unit,
+                            both.mean_residence_time)
 
     result = part(slice(0, count))
     fine = part(slice(count, None)) if drawn else None
-    mean, _ = rtd_moments(unit, programs=programs)
+    mean = float(both.mean_residence_time)
     values = ", ".join(f"{name}={value:g}" for name, value in
                        zip(fitted.parameter_names, fitted.values.tolist(), strict=True))
     if not (np.all(np.isfinite(np.asarray(result.max_deviation))) and math.isfinite(mean)):
