@@ -129,6 +129,7 @@ class ExportedPrograms:
                 return function(*eqx.combine(jax.tree_util.tree_unflatten(structure, values),
                                              static))
 
+            flat.__name__ = flat.__qualname__ = function.__name__  # in JAX's messages
             program = self._programs[identity] = Program(flat, name,
                                                          ("axialmix.line", *identity))
         executable, _ = program.executable(leaves)
