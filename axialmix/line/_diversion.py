@@ -22,7 +22,6 @@ parameter distribution. Two conservative windows are offered:
 
 from __future__ import annotations
 
-import functools
 import math
 import os
 from collections.abc import Callable
@@ -39,7 +38,6 @@ from axialmix.analytic.fourier import grid_inversion, truncation_estimates
 from axialmix.line._disturbance import (
     Disturbance,
     has_grid,
-    lag_horizon,
     response_at,
     response_on_grid,
 )
@@ -490,7 +488,7 @@ def diversion_window(
         # so that the window's program is compiled once, for the scan it runs on.
         ends = _candidate_ends(times)
         if inverted is not None:
-            unsettled = _inverted_unsettled(inverted, disturbance, ends)
+            unsettled = _inverted_unsettled(inverted, disturbance, ends, programs)
         else:
             evaluator = as_evaluator(rtd, _lag_horizon_host(disturbance, ends))
             unsettled = np.asarray(run_program(programs, "divert-settle", _settle_program,
@@ -507,7 +505,7 @@ def diversion_window(
     if inverted is not None:
         # Each time of such a unit is a contour integral: the window is located on a fine
         # table of its exact values (one program), whose error is estimated and returned.
-        evaluator, _, table_error = _nominal_table(inverted, disturbance, times)
+        evaluator, _, table_error = _nominal_table(inverted, disturbance, times, programs)
     else:
         evaluator = as_evaluator(rtd, _lag_horizon_host(disturbance, times))
     start, stop, amount, diverts, outlet, _ = run_program(
@@ -784,19 +782,27 @@ def _inverted_unit(rtd) -> Unit | None:
     return rtd if isinstance(rtd, Unit) and rtd.model.numerical else None
 
 
-@functools.partial(eqx.filter_jit)
-def _exact_curves(unit, times, exit_age):
-    """F (and E, or None) of `unit` at 1-D `times`: the one exact program of an inverted
-    unit's diversion (its tables' nodes and its settle checks share its shape)."""
+def _exact_curves_program(unit, times, exit_age):
     return (unit._curve("cumulative", times),
             unit._curve("exit_age", times) if exit_age else None)
 
 
-@functools.partial(eqx.filter_jit)
-def _exact_sample_curves(unit_factory, parameters, times, exit_age, batch):
-    """:func:`_exact_curves` of every sample's unit ``(samples, times)``, in batches."""
-    return jax.lax.map(lambda vector: _exact_curves(
+def _exact_curves(unit, times, exit_age, programs=None):
+    """F (and E, or None) of `unit` at 1-D `times`: the one exact program of an inverted
+    unit's diversion (its tables' nodes and its settle checks share its shape)."""
+    return run_program(programs, "divert-exact-curves", _exact_curves_program, unit,
+                       np.asarray(times, float), exit_age)
+
+
+def _exact_sample_curves_program(unit_factory, parameters, times, exit_age, batch):
+    return jax.lax.map(lambda vector: _exact_curves_program(
         _inverted_unit(unit_factory(vector)), times, exit_age), parameters, batch_size=batch)
+
+
+def _exact_sample_curves(unit_factory, parameters, times, exit_age, batch, programs=None):
+    """:func:`_exact_curves` of every sample's unit ``(samples, times)``, in batches."""
+    return run_program(programs, "divert-exact-sample-curves", _exact_sample_curves_program,
+                       unit_factory, parameters, np.asarray(times, float), exit_age, batch)
 
 
 def _padded(times: np.ndarray, size: int) -> np.ndarray:
@@ -810,8 +816,8 @@ def _table(step, cumulative, exit_age, unit):
 
 
 def _unsettled_from(cumulative, lags):
-    """``1 - F`` at the lags from the last event (1 where the lag is not positive)."""
-    return jnp.where(lags > 0, 1.0 - cumulative, 1.0)
+    """``1 - F`` at the lags from the last event (1 where the lag is not positive; NumPy)."""
+    return np.where(np.asarray(lags) > 0, 1.0 - np.asarray(cumulative), 1.0)
 
 
 def _sample_windows(unit_factory, parameters, disturbance, times, target, lower, upper, flow,
@@ -878,53 +884,60 @@ def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lowe
     return tuple(np.asarray(result)[:count] for result in compiled(*args))
 
 
-@functools.partial(eqx.filter_jit)
-def _table_outlets(unit, step, cumulative, exit_age, disturbance, times, strides):
-    """The outlet deviation on `times` from the tables of every `stride`-th of the exact node
-    values ``(step, cumulative, exit_age)`` (one row per stride)."""
+def _table_outlets_program(unit, step, cumulative, exit_age, disturbance, times, strides):
     return jnp.stack([response_at(_table(
         step * stride, cumulative[::stride], None if exit_age is None else exit_age[::stride],
         unit), disturbance, times) for stride in strides])
 
 
-def _nominal_table(unit: Unit, disturbance: Disturbance, times: np.ndarray):
+def _table_outlets(unit, step, cumulative, exit_age, disturbance, times, strides,
+                   programs=None):
+    """The outlet deviation on `times` from the tables of every `stride`-th of the exact node
+    values ``(step, cumulative, exit_age)`` (one row per stride)."""
+    return run_program(programs, "divert-table-outlets", _table_outlets_program, unit,
+                       np.asarray(step, float), cumulative, exit_age, disturbance,
+                       np.asarray(times, float), strides)
+
+
+def _nominal_table(unit: Unit, disturbance: Disturbance, times: np.ndarray, programs=None):
     """The table an inverted unit's nominal window is computed on, with the node values, its
     step and the estimate of its outlet error on `times` (the difference to the table of
     every second node, content unit; the table's own error is smaller, by about 2⁶ for a
     smooth curve)."""
-    horizon = float(lag_horizon(disturbance, jnp.asarray(times)))
+    horizon = _lag_horizon_host(disturbance, times)
     step = horizon / NOMINAL_TABLE_INTERVALS
     cumulative, density = _exact_curves(
-        unit, jnp.asarray(step * np.arange(NOMINAL_TABLE_INTERVALS + 1)), _needs(disturbance))
+        unit, step * np.arange(NOMINAL_TABLE_INTERVALS + 1), _needs(disturbance), programs)
     outlets = np.asarray(_table_outlets(unit, step, cumulative, density, disturbance,
-                                        jnp.asarray(times), (1, 2)))
+                                        times, (1, 2), programs))
     error = float(np.max(np.abs(outlets[0] - outlets[1])))
     return _table(step, cumulative, density, unit), (step, cumulative, density), error
 
 
-def _inverted_unsettled(unit: Unit, disturbance: Disturbance, ends: np.ndarray) -> np.ndarray:
+def _inverted_unsettled(unit: Unit, disturbance: Disturbance, ends: np.ndarray,
+                        programs=None) -> np.ndarray:
     """``1 - F(end - last event)`` of an inverted unit at the candidate `ends`, exactly, by the
     program of its nominal table."""
-    events = np.asarray(disturbance.event_times())
+    events = _event_times_host(disturbance)
     if events.size == 0:
         return np.zeros(ends.shape)
     lags = ends - events.max()
-    cumulative, _ = _exact_curves(unit, jnp.asarray(_padded(
-        np.maximum(lags, 0.0), NOMINAL_TABLE_INTERVALS + 1)), _needs(disturbance))
-    return np.asarray(_unsettled_from(cumulative[: ends.shape[0]], jnp.asarray(lags)))
+    cumulative, _ = _exact_curves(unit, _padded(
+        np.maximum(lags, 0.0), NOMINAL_TABLE_INTERVALS + 1), _needs(disturbance), programs)
+    return _unsettled_from(np.asarray(cumulative)[: ends.shape[0]], lags)
 
 
 def _choose_table(unit: Unit, nominal: DiversionWindow, disturbance: Disturbance, target,
-                  lower, upper):
+                  lower, upper, programs=None):
     """The coarsest interval count of :data:`TABLE_INTERVALS` whose table's nominal outlet
     agrees with the nominal window's within :data:`TABLE_TOLERANCE` of the limits' width on
     the nominal scan, the table's step (time unit) and that difference (content unit); the
     count is None when no table is close enough."""
     _, (step, cumulative, density), _ = _nominal_table(unit, disturbance,
-                                                       np.asarray(nominal.times))
+                                                       np.asarray(nominal.times), programs)
     strides = tuple(NOMINAL_TABLE_INTERVALS // n for n in TABLE_INTERVALS)
     outlets = np.asarray(_table_outlets(unit, step, cumulative, density, disturbance,
-                                        nominal.times, strides))
+                                        nominal.times, strides, programs))
     differences = np.max(np.abs(outlets - (np.asarray(nominal.outlet) - float(target))),
                          axis=1)
     allowed = TABLE_TOLERANCE * float(upper - lower)
@@ -938,7 +951,7 @@ def _choose_table(unit: Unit, nominal: DiversionWindow, disturbance: Disturbance
 def _sample_grid(disturbance: Disturbance, scan: np.ndarray, step: float):
     """Spacing, interval count and horizon of the samples' tables over the lags of `scan`:
     spacing at most `step`, the count a power of two (extended scans keep the spacing)."""
-    horizon = float(lag_horizon(disturbance, jnp.asarray(scan)))
+    horizon = _lag_horizon_host(disturbance, scan)
     intervals = 1 << max(0, math.ceil(math.log2(horizon / step - 1e-9)))
     return horizon / intervals, intervals, horizon
 
@@ -954,23 +967,23 @@ def _unit_transfer(unit: Unit):
     return lambda s: unit.model.transfer_function(s, unit.parameters, unit.structure)
 
 
-@functools.partial(eqx.filter_jit)
 def _fourier_estimates(unit, horizon, intervals, max_terms, exit_age):
     return truncation_estimates(_unit_transfer(unit), horizon, intervals, max_terms,
                                 exit_age=exit_age)
 
 
-def _fourier_terms(unit: Unit, horizon: float, intervals: int, exit_age: bool) -> int | None:
+def _fourier_terms(unit: Unit, horizon: float, intervals: int, exit_age: bool,
+                   programs=None) -> int | None:
     """Terms of the samples' Fourier series: twice the fewest whose estimate on the nominal
     unit is a tenth of :data:`FOURIER_TOLERANCE` (a margin for the samples' spread), or None
     when :data:`MAX_FOURIER_TERMS` do not reach it."""
-    estimates = np.asarray(_fourier_estimates(unit, float(horizon), intervals,
-                                              MAX_FOURIER_TERMS // 2, exit_age))
+    estimates = np.asarray(run_program(programs, "divert-fourier-estimates",
+                                       _fourier_estimates, unit, float(horizon), intervals,
+                                       MAX_FOURIER_TERMS // 2, exit_age))
     good = np.flatnonzero(estimates <= 0.1 * FOURIER_TOLERANCE)
     return None if good.size == 0 else 8 * intervals * 2 ** int(good[0])
 
 
-@functools.partial(eqx.filter_jit)
 def _fourier_sample_curves(unit_factory, parameters, horizon, intervals, terms, exit_age,
                            batch):
     """Each sample's Fourier-series table ``(F, E, estimate)``, in batches."""
@@ -990,7 +1003,7 @@ def _check_nodes(intervals: int) -> np.ndarray:
 
 
 def _sample_tables(unit_factory, parameters, disturbance, scan, step: float, batch: int,
-                   unit: Unit):
+                   unit: Unit, programs=None):
     """Each sample's node values on the grid of :func:`_sample_grid`: ``(step, F, E)`` with
     ``(samples, N + 1)`` arrays, the horizon and the :class:`SampleTables` record. The
     values come from the Fourier series where it is verified, else from the exact
@@ -999,22 +1012,22 @@ def _sample_tables(unit_factory, parameters, disturbance, scan, step: float, bat
     count = parameters.shape[0]
     needs = _needs(disturbance)
     nodes = grid * np.arange(intervals + 1)
-    terms = _fourier_terms(unit, grid * intervals, intervals, needs)
+    terms = _fourier_terms(unit, grid * intervals, intervals, needs, programs)
     if terms is None:
         cumulative, density = _exact_sample_curves(
-            unit_factory, _pad_rows(parameters, batch), jnp.asarray(nodes), needs, batch)
+            unit_factory, _pad_rows(parameters, batch), nodes, needs, batch, programs)
         return ((grid, cumulative[:count], None if density is None else density[:count]),
                 horizon, SampleTables(intervals, None, count, float("nan")))
     fbatch = min(_fourier_batch(terms), count)
-    cumulative, density, estimate = _fourier_sample_curves(
-        unit_factory, _pad_rows(parameters, fbatch), grid * intervals, intervals, terms, needs,
-        fbatch)
+    cumulative, density, estimate = run_program(
+        programs, "divert-fourier-sample-curves", _fourier_sample_curves, unit_factory,
+        _pad_rows(parameters, fbatch), grid * intervals, intervals, terms, needs, fbatch)
     cumulative, estimate = np.array(cumulative[:count]), np.asarray(estimate[:count])
     density = None if density is None else np.array(density[:count])
     checked = _check_nodes(intervals)
     exact_f, exact_e = _exact_sample_curves(
-        unit_factory, _pad_rows(parameters, batch),
-        jnp.asarray(_padded(nodes[checked], CHECK_NODES)), needs, batch)
+        unit_factory, _pad_rows(parameters, batch), _padded(nodes[checked], CHECK_NODES),
+        needs, batch, programs)
     exact_f = np.asarray(exact_f[:count, : checked.size])
     difference = np.abs(cumulative[:, checked] - exact_f).max(axis=1)
     finite = np.isfinite(exact_f).all(axis=1)
@@ -1029,7 +1042,7 @@ def _sample_tables(unit_factory, parameters, disturbance, scan, step: float, bat
     redo = np.flatnonzero(finite & ~(error <= FOURIER_TOLERANCE))
     if redo.size:
         exact_cumulative, exact_density = _exact_sample_curves(
-            unit_factory, _pad_rows(parameters[redo], batch), jnp.asarray(nodes), needs, batch)
+            unit_factory, _pad_rows(parameters[redo], batch), nodes, needs, batch, programs)
         cumulative[redo] = np.asarray(exact_cumulative[: redo.size])
         if density is not None:
             density[redo] = np.asarray(exact_density[: redo.size])
@@ -1041,20 +1054,20 @@ def _sample_tables(unit_factory, parameters, disturbance, scan, step: float, bat
             horizon, SampleTables(intervals, terms, int(redo.size), worst))
 
 
-def _sample_settle_exact(unit_factory, parameters, disturbance, ends, batch: int) -> np.ndarray:
+def _sample_settle_exact(unit_factory, parameters, disturbance, ends, batch: int,
+                         programs=None) -> np.ndarray:
     """``1 - F(end - last event)`` of each sample at the candidate `ends` ``(samples, ends)``,
     by the exact inversion (the program of the tables' check nodes: the lags padded to
     :data:`CHECK_NODES`)."""
-    events = np.asarray(disturbance.event_times())
+    events = _event_times_host(disturbance)
     count = parameters.shape[0]
     if events.size == 0:
         return np.zeros((count, ends.shape[0]))
     lags = ends - events.max()
     cumulative, _ = _exact_sample_curves(
-        unit_factory, _pad_rows(parameters, batch),
-        jnp.asarray(_padded(np.maximum(lags, 0.0), CHECK_NODES)), _needs(disturbance),
-        batch)
-    return np.asarray(_unsettled_from(cumulative[:count, : ends.shape[0]], jnp.asarray(lags)))
+        unit_factory, _pad_rows(parameters, batch), _padded(np.maximum(lags, 0.0), CHECK_NODES),
+        _needs(disturbance), batch, programs)
+    return _unsettled_from(np.asarray(cumulative)[:count, : ends.shape[0]], lags)
 
 
 def _settled_scan(settle: np.ndarray, full: np.ndarray, scan: np.ndarray, step: int,
@@ -1192,17 +1205,18 @@ def conservative_diversion_window(
     table_difference = float("nan")
     if inverted is not None:
         table_intervals, table_step, table_difference = _choose_table(
-            inverted, nominal, disturbance, target, lower, upper)
+            inverted, nominal, disturbance, target, lower, upper, programs)
     if table_intervals is not None:
         # Each sample is evaluated on a table of its values, on the scan to the latest end
         # any of them needs (found first, exactly).
-        settle = _sample_settle_exact(unit_factory, parameters, disturbance, ends, batch)
+        settle = _sample_settle_exact(unit_factory, parameters, disturbance, ends, batch,
+                                      programs)
         scan = _settled_scan(settle, full, scan, step, samples, lags)
         tables, horizon, table_record = _sample_tables(
-            unit_factory, parameters, disturbance, scan, table_step, batch, inverted)
+            unit_factory, parameters, disturbance, scan, table_step, batch, inverted, programs)
         starts, stops, diverts, finite, unsettled = _evaluate_samples(
             unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
-            horizon, tables)
+            horizon, tables, programs)
     else:
         if inverted is not None:  # an inverted unit without a close enough table
             settle = np.asarray(run_program(
