@@ -360,6 +360,34 @@ def test_closed_closed_second_derivative_matches_finite_differences():
     assert float(second) == pytest.approx(fd, rel=1e-6)
 
 
+@pytest.mark.parametrize("peclet", [0.01, 0.3, 8.0, 137.0, 1e3, 1e4])
+def test_closed_closed_slopes_equal_differentiated_quadrature(peclet):
+    # E's custom JVP sums the theta and Pe derivatives of the integrand on the quadrature's
+    # nodes; differentiating the E of closed_closed_curves (plain JAX arithmetic, no custom
+    # rule) is an independent route to the same Jacobian and Hessian.
+    from axialmix.analytic._contour import closed_closed_curves, closed_closed_exit_age
+
+    theta = jnp.linspace(0.0, 3.0, 61)
+
+    def curve(f):
+        return lambda x: x[2] * f(theta / x[0], x[1])
+
+    plain = curve(lambda th, pe: closed_closed_curves(th, pe)[0])
+    fast = curve(closed_closed_exit_age)
+    x = jnp.array([1.3, peclet, 0.7])
+    # The same quadrature, its denominator written without exprel: equal to round-off.
+    np.testing.assert_allclose(fast(x), plain(x), rtol=0, atol=1e-14 * np.max(plain(x)))
+    for jacobian in (jax.jacfwd, jax.jacrev):
+        expected = np.asarray(jax.jacfwd(plain)(x))
+        got = np.asarray(jacobian(fast)(x))
+        scale = np.max(np.abs(expected), axis=0)
+        assert np.max(np.abs(got - expected) / scale) < 1e-11
+    weights = jnp.cos(theta)
+    expected = np.asarray(jax.hessian(lambda x: weights @ plain(x))(x))
+    got = np.asarray(jax.hessian(lambda x: weights @ fast(x))(x))
+    assert np.max(np.abs(got - expected)) < 1e-10 * np.max(np.abs(expected))
+
+
 def test_closed_closed_curves_jit_and_vmap():
     t = jnp.linspace(0.0, 100.0, 301)
     peclets = jnp.array([0.5, 5.0, 50.0, 500.0])

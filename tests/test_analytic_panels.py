@@ -152,8 +152,12 @@ def test_adm_model_uses_the_panels_only_for_long_curves():
     values = np.asarray(model(long, params))
     np.testing.assert_array_equal(values, np.asarray(exit_age_closed_panels(long, 20.0, 10.0)))
     largest, peak = model.long_curve_check(long, params)
+    # The check's exact E is compiled inside its own program, where t / tau may be rounded
+    # differently from the eager evaluation's: equal to a few units in the last place of
+    # the peak (the deviation itself is about 1e-14 of the peak).
     assert largest == pytest.approx(
-        np.max(np.abs(values - np.asarray(exit_age_closed(long, 20.0, 10.0)))), abs=1e-300)
+        np.max(np.abs(values - np.asarray(exit_age_closed(long, 20.0, 10.0)))),
+        abs=1e-15 * peak)
     assert largest <= TOLERANCE * peak
     # The response to a sampled inlet stays on the exact E.
     assert model.inlet_response is not None

@@ -13,7 +13,12 @@ import jax.numpy as jnp
 from jax.typing import ArrayLike
 
 from axialmix._validation import require_finite, require_increasing_times, require_positive
-from axialmix.analytic._contour import DEFAULT_NODES, closed_closed_curves, exprel
+from axialmix.analytic._contour import (
+    DEFAULT_NODES,
+    closed_closed_curves,
+    closed_closed_exit_age,
+    exprel,
+)
 
 __all__ = [
     "exit_age_closed",
@@ -56,8 +61,7 @@ def exit_age_closed(
     require_positive("peclet", peclet)
     _require_nodes(nodes)
     tau = jnp.asarray(tau, float)
-    exit_age, _ = closed_closed_curves(jnp.asarray(t, float) / tau, peclet, nodes)
-    return exit_age / tau
+    return closed_closed_exit_age(jnp.asarray(t, float) / tau, peclet, nodes) / tau
 
 
 def step_response_closed(

@@ -46,7 +46,7 @@ import numpy as np
 from jax.typing import ArrayLike
 
 from axialmix._validation import require_finite, require_positive
-from axialmix.analytic._contour import closed_closed_curves
+from axialmix.analytic._contour import closed_closed_exit_age
 
 __all__ = [
     "CHECK_TOLERANCE",
@@ -137,7 +137,7 @@ def _layout(tau, peclet, panels: int, degree: int):
 def _exact(t, tau, peclet):
     """The exact E at times `t` (any shape), 1/(time unit)."""
     tau = jnp.asarray(tau, float)
-    exit_age, _ = closed_closed_curves(t / tau, peclet)
+    exit_age = closed_closed_exit_age(t / tau, peclet)
     return exit_age / tau
 
 
