@@ -65,7 +65,7 @@ from fitting.solve import enable_compilation_cache
 enable_compilation_cache()
 study, tau, peclet, _ = benchmark_study.synthetic_study(%(count)d, 7)
 plan = StudyPlan("adm")
-with tempfile.TemporaryDirectory() as folder:
+with tempfile.TemporaryDirectory(dir=os.getcwd()) as folder:  # a disk folder, as --out is
     run = StudyRun(plan, study, folder, 256)
     began = time.perf_counter()
     run.run(progress=False)

@@ -29,7 +29,8 @@ the study; if it is off by more than 1e-8 of the curve's peak anywhere, the benc
 The table gives curves per second and the ratio to the one-process run, the median and
 95th-percentile relative errors of tau and Pe, and interval coverage (share of curves whose
 95 % interval holds the true value); the last line gives the ratios the targets are stated
-in. Run with ``nice``: it loads every core it is given.
+in. Run with ``nice``: it loads every core it is given. The studies write their output
+folders (temporary) into the current folder, as ``axialmix fit --out`` would.
 
     python benchmarks/study.py [--curves 10000] [--dask-curves N] [--subset 200] [--chunk 64]
                                [--workers 2]
@@ -57,6 +58,11 @@ TAU_RANGE = (7.0, 225.0)
 PECLET_RANGE = (8.0, 137.0)
 SAMPLES = (15, 60)
 NOISE = 0.02
+#: Where the studies' output folders are made (temporary folders, removed afterwards): the
+#: current folder, as a user's ``--out`` would be, not the system's temporary folder (on
+#: some machines /tmp creates files 30 times slower than the disk it sits on, which a study
+#: writing a record file per curve would measure instead of the fits).
+SCRATCH = os.getcwd()
 
 
 def synthetic_study(count: int, seed: int):
@@ -120,7 +126,7 @@ def run_one_process(plan, study, threads=None):
     from fitting.study.batch import StudyRun, fit_chunk
 
     fit_chunk(plan, warm_curves(study))
-    with tempfile.TemporaryDirectory() as folder:
+    with tempfile.TemporaryDirectory(dir=SCRATCH) as folder:
         run = StudyRun(plan, study, folder, CHUNK)
         began = time.perf_counter()
         run.run(progress=False, threads=threads)
@@ -144,7 +150,7 @@ def run_dask(plan, study, workers: int):
     client.gather(futures)
     startup = time.perf_counter() - began
     try:
-        with tempfile.TemporaryDirectory() as folder:
+        with tempfile.TemporaryDirectory(dir=SCRATCH) as folder:
             run = StudyRun(plan, study, folder, CHUNK)
             began = time.perf_counter()
             run.run(scheduler=cluster.scheduler_address, progress=False)

@@ -18,7 +18,10 @@ study around the fits:
   memory grows by a table row per curve, not by a fit.
 * **Resumable.** Each finished chunk is appended to the journal ``summary.jsonl`` in the
   output folder (its first line describes the study and the settings; then one JSON line per
-  curve) by one ``write`` and ``fsync``, and ``summary.csv`` is rewritten atomically. A run
+  curve) by one ``write`` and ``fsync``, together with each curve's record in ``curves/``;
+  ``summary.csv`` is rewritten atomically after the first chunk and then as often as keeps
+  its rewriting under a tenth of the run (at most once a second; a table of 100,000 rows
+  rewritten after every chunk would cost more than the fits), and always at the end. A run
   started again on the same folder, with the same study and settings, reads the journal and
   fits only the curves not in it: after Ctrl-C or a kill no finished curve is lost or fitted
   twice (a line torn by a kill during the write is dropped and its curve fitted again).
@@ -45,7 +48,8 @@ import math
 import os
 import sys
 import threading
-from collections.abc import Callable, Iterator, Mapping, Sequence
+import time
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -321,6 +325,11 @@ class StudyRun:
         #: left out as read, then those refused by the fit (kept in the journal as well).
         self.refused: dict[str, str] = dict(study.refused)
         self._offsets: dict[str, tuple[int, int]] = {}
+        #: Curves whose ``curves/`` record this run has written (as their chunk finished).
+        self._filed: set[str] = set()
+        #: When ``summary.csv`` was last rewritten (monotonic s), and how long that took.
+        self._table_written = -math.inf
+        self._table_seconds = 0.0
         self._resume()
         #: Curves the journal held when this run began.
         self.resumed = len(self.done)
@@ -403,29 +412,43 @@ class StudyRun:
             for row, line in zip(rows, lines, strict=True):
                 self._keep(row, offset, len(line) - 1)
                 offset += len(line)
-            self._write_table()
+            folder = self.folder / CURVE_FOLDER
+            folder.mkdir(exist_ok=True)
+            for row in rows:
+                write_json(folder / f"{self.stems[row['curve']]}.json",
+                           self._curve_record(row))
+                self._filed.add(row["curve"])
+            if time.monotonic() - self._table_written >= max(1.0, 10.0 * self._table_seconds):
+                self._write_table()
 
-    def records(self) -> Iterator[dict[str, Any]]:
+    def _curve_record(self, row: Mapping[str, Any]) -> dict[str, Any]:
+        """A journal row as the record of its curve: its id, its factors, then the fit."""
+        levels = dict(zip(self.study.factors, row["levels"], strict=True))
+        return {"curve": row["curve"],
+                "factors": {f: factor_value(v) for f, v in levels.items()}, **row["record"]}
+
+    def records(self, skip: Collection[str] = ()) -> Iterator[dict[str, Any]]:
         """The finished curves' records (:func:`fitting.report.fit_record`, with ``curve``
-        and ``factors``), in study order, read back from the journal one at a time."""
-        names = sorted(self._offsets, key=self.index.__getitem__)
+        and ``factors``), in study order, read back from the journal one at a time; `skip`:
+        curve ids left out."""
+        names = sorted((n for n in self._offsets if n not in skip),
+                       key=self.index.__getitem__)
         with open(self.journal, "rb") as stream:
             for name in names:
                 offset, size = self._offsets[name]
                 stream.seek(offset)
-                row = json.loads(stream.read(size))
-                levels = dict(zip(self.study.factors, row["levels"], strict=True))
-                yield {"curve": name,
-                       "factors": {f: factor_value(v) for f, v in levels.items()},
-                       **row["record"]}
+                yield self._curve_record(json.loads(stream.read(size)))
 
     def _write_table(self) -> None:
+        began = time.monotonic()
         header = self._columns[0] if self._columns else ["curve", *self.study.factors]
         rows = [self.done[name] for name in sorted(self.done, key=self.index.__getitem__)]
         write_csv(self.folder / "summary.csv", header, rows)
         if self.refused:
             write_csv(self.folder / "refused.csv", ["curve", "reason"],
                       [[name, reason] for name, reason in self.refused.items()])
+        self._table_written = time.monotonic()
+        self._table_seconds = self._table_written - began
 
     def write_summary(self) -> None:
         """Write ``summary.csv`` and ``summary.json`` (every finished curve's full record, in
@@ -458,10 +481,11 @@ class StudyRun:
         ``divert --model`` read, as they read a single file's fit), named by :attr:`stems`
         (characters other than letters, digits, ``.``, ``-`` and ``_`` become ``_``; a name
         taken twice that way gets its study position appended). Each is written atomically;
-        a record already there from an earlier run of the same study is rewritten."""
+        those of this run were written as their chunks finished, so here only the curves an
+        earlier run of the same study fitted are (re)written."""
         folder = self.folder / CURVE_FOLDER
         folder.mkdir(exist_ok=True)
-        for record in self.records():
+        for record in self.records(skip=self._filed):
             write_json(folder / f"{self.stems[record['curve']]}.json", record)
 
     def _write_images(self, indices: Sequence[int], images: Sequence[bytes | None]) -> None:
