@@ -59,9 +59,7 @@ PECLET_RANGE = (8.0, 137.0)
 SAMPLES = (15, 60)
 NOISE = 0.02
 #: Where the studies' output folders are made (temporary folders, removed afterwards): the
-#: current folder, as a user's ``--out`` would be, not the system's temporary folder (on
-#: some machines /tmp creates files 30 times slower than the disk it sits on, which a study
-#: writing a record file per curve would measure instead of the fits).
+#: current folder, as a user's ``--out`` would be.
 SCRATCH = os.getcwd()
 
 

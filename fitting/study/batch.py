@@ -18,7 +18,8 @@ study around the fits:
   memory grows by a table row per curve, not by a fit.
 * **Resumable.** Each finished chunk is appended to the journal ``summary.jsonl`` in the
   output folder (its first line describes the study and the settings; then one JSON line per
-  curve) by one ``write`` and ``fsync``, together with each curve's record in ``curves/``;
+  curve) by one ``write`` and ``fsync`` (each curve's record in ``curves/`` is written beside
+  it by a thread of its own, and the summary waits for those files);
   ``summary.csv`` is rewritten atomically after the first chunk and then as often as keeps
   its rewriting under a tenth of the run (at most once a second; a table of 100,000 rows
   rewritten after every chunk would cost more than the fits), and always at the end. A run
@@ -325,8 +326,11 @@ class StudyRun:
         #: left out as read, then those refused by the fit (kept in the journal as well).
         self.refused: dict[str, str] = dict(study.refused)
         self._offsets: dict[str, tuple[int, int]] = {}
-        #: Curves whose ``curves/`` record this run has written (as their chunk finished).
+        #: Curves whose ``curves/`` record this run has written (as their chunk finished),
+        #: by :attr:`_writer`, a thread of its own; :attr:`_file_writes` are its tasks.
         self._filed: set[str] = set()
+        self._writer = concurrent.futures.ThreadPoolExecutor(1, "axialmix-records")
+        self._file_writes: list[concurrent.futures.Future] = []
         #: When ``summary.csv`` was last rewritten (monotonic s), and how long that took.
         self._table_written = -math.inf
         self._table_seconds = 0.0
@@ -399,6 +403,15 @@ class StudyRun:
                  "record": record} for i, record in zip(indices, records, strict=True)]
         lines = [json.dumps(row, allow_nan=False).encode() + b"\n" for row in rows]
         text = b"".join(lines)
+        # The curves' record files are written by a thread of their own (creating a file
+        # can take a millisecond on a busy disk, time the fits need not wait for); the
+        # summary waits for them, and a resumed run rewrites every earlier curve's file.
+        folder = self.folder / CURVE_FOLDER
+        folder.mkdir(exist_ok=True)
+        files = [(folder / f"{self.stems[row['curve']]}.json", self._curve_record(row))
+                 for row in rows]
+        self._file_writes.append(self._writer.submit(
+            lambda: [write_json(path, record) for path, record in files]))
         with self.lock:
             handle = os.open(self.journal, os.O_WRONLY | os.O_APPEND)
             try:
@@ -412,12 +425,7 @@ class StudyRun:
             for row, line in zip(rows, lines, strict=True):
                 self._keep(row, offset, len(line) - 1)
                 offset += len(line)
-            folder = self.folder / CURVE_FOLDER
-            folder.mkdir(exist_ok=True)
-            for row in rows:
-                write_json(folder / f"{self.stems[row['curve']]}.json",
-                           self._curve_record(row))
-                self._filed.add(row["curve"])
+            self._filed.update(row["curve"] for row in rows)
             if time.monotonic() - self._table_written >= max(1.0, 10.0 * self._table_seconds):
                 self._write_table()
 
@@ -483,6 +491,9 @@ class StudyRun:
         taken twice that way gets its study position appended). Each is written atomically;
         those of this run were written as their chunks finished, so here only the curves an
         earlier run of the same study fitted are (re)written."""
+        writes, self._file_writes = self._file_writes, []
+        for write in writes:
+            write.result()  # raises what a write raised
         folder = self.folder / CURVE_FOLDER
         folder.mkdir(exist_ok=True)
         for record in self.records(skip=self._filed):
