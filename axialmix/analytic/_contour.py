@@ -16,8 +16,11 @@ nodes serves all of them:
 * the integral is truncated at ``y = sqrt(4 T / (Pe theta))``, where the Gaussian is
   ``e^-T``.
 
-With ``T = 40`` and 32 nodes the step is 0.2 scaled units; the discretisation error
-``~exp(-2 pi sqrt(L) / step)`` is far below round-off.
+With ``T = 40`` and 24 nodes the step is 0.26 scaled units; the discretisation error
+``~exp(-2 pi sqrt(L) / step)`` (about 2e-16) is below round-off. Measured against 48 nodes
+over Pe from 1e-3 to 1e5 and theta from 1e-4 to 20: E to 2.4e-15 of its peak, F to 4e-16,
+E's Jacobian to 1.4e-12 of each column's largest entry, as 32 nodes; 20 nodes reach 7e-14
+and 16 nodes 3e-11.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from jax.scipy.special import erfc
 
 OFFSET_EXPONENT = 2.3
 TRUNCATION_EXPONENT = 40.0
-DEFAULT_NODES = 32
+DEFAULT_NODES = 24
 #: Points per block of a long evaluation (see :func:`closed_closed_curves`): about 50 MB of
 #: quadrature arrays per block.
 BLOCK = 4096

@@ -49,8 +49,9 @@ def exit_age_closed(
     - `t`: times (any unit), strictly increasing; times ``<= 0`` give 0.
     - `tau`: space time ``L / v`` in the same unit (positive); it is also the mean.
     - `peclet`: Peclet number ``Pe = v L / D_z`` (dimensionless, positive).
-    - `nodes`: quadrature nodes of the Bromwich integral (static, at least 8; the default 32
-      is exact to round-off for Pe from 1e-3 to 1e5, and 24 already is).
+    - `nodes`: quadrature nodes of the Bromwich integral (static, at least 8; the default 24
+      is exact to round-off for Pe from 1e-3 to 1e5: within 2.4e-15 of the peak of 48
+      nodes' values).
 
     **Returns:**
 
