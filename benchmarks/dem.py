@@ -46,7 +46,8 @@ SOURCE_7_6 = [(3.99, 7.35), (5.17, 3.95), (15.79, 10.60), (2.29, 5.13), (11.83, 
 N_REGIONS = 10
 
 
-def section(path: str) -> None:
+def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
+            delays_s: tuple[float, ...] = (1.0, 2.0, 4.0)) -> None:
     from axialmix.dem import (
         DEMRun,
         cell_length_limit,
@@ -79,7 +80,7 @@ def section(path: str) -> None:
                             vessel_radius=g.radius, n_radial=n_radial)
         n = n_cells * n_radial
         centres = np.repeat((np.arange(n_cells) + 0.5) * g.length / n_cells, n_radial)
-        for lag_s in (0.05, 0.25):
+        for lag_s in lags:
             lag = max(1, round(lag_s / dt))
             learned = learn_network(cells[:half], n, dt, lag, round(g.revolution_time / dt),
                                     centres=centres, period=g.length)
@@ -90,7 +91,9 @@ def section(path: str) -> None:
             # The tracer: spheres in the first axial cell (all rings) at one start (mid-run)
             # and at starts every 0.05 s over the second half (all blade phases); the noise
             # floor from two random halves of the spheres.
-            delays = tuple(round(t / dt) for t in (0.25, 0.5, 1.0, 2.0))
+            # Delays that are whole multiples of every lag: there a Markov chain of the lag is
+            # defined without interpolating between its steps.
+            delays = tuple(round(t / dt) for t in delays_s)
             one = tracer_spreading(cells, learned, dt, half, delays, n_radial=n_radial)
             starts = np.arange(half, run.n_frames - max(delays), round(0.05 / dt))
             spread = tracer_spreading(cells, learned, dt, starts, delays, n_radial=n_radial)
@@ -106,9 +109,14 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="600 spheres, runs of 1-1.5 s")
     parser.add_argument("--out", default=None, help="write results.json here")
     parser.add_argument("--section", default=None, metavar="RUN", help="analyse a section run")
+    parser.add_argument("--lags", default="0.05,0.25,0.5,1.0",
+                        help="with --section: lags of the learned networks, s (comma-separated)")
+    parser.add_argument("--delays", default="1,2,4",
+                        help="with --section: tracer delays compared, s (comma-separated)")
     args = parser.parse_args()
     if args.section:
-        section(args.section)
+        section(args.section, tuple(float(x) for x in args.lags.split(",")),
+                tuple(float(x) for x in args.delays.split(",")))
         return
     if args.quick:
         mixer = BladedMixer(particles=(300, 300), diameter=0.0082)

@@ -279,6 +279,11 @@ def test_killed_study_restarted_loses_and_repeats_no_curve(tmp_path):
     resumed = json.loads((out / "summary.json").read_text())["curves"]
     whole = json.loads((reference / "summary.json").read_text())["curves"]
     assert [r["parameters"] for r in resumed] == [r["parameters"] for r in whole]
+    # Every curve has its record file, the one summary.json holds: those fitted before the
+    # kill (rewritten at the end of the resumed run) and those fitted after it.
+    files = {p.stem: json.loads(p.read_text()) for p in (out / "curves").glob("*.json")}
+    assert sorted(files) == sorted(r[0] for r in runs)
+    assert all(files[record["curve"]] == record for record in resumed)
     print(f"killed with {before} of {len(runs)} curves written; restarted: {len(ids)} curves, "
           "each once, equal to an uninterrupted run")
 
