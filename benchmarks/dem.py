@@ -47,7 +47,8 @@ N_REGIONS = 10
 
 
 def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
-            delays_s: tuple[float, ...] = (1.0, 2.0, 4.0)) -> None:
+            delays_s: tuple[float, ...] = (1.0, 2.0, 4.0), estimator: str = "logm",
+            layouts: tuple[tuple[int, int], ...] = ((6, 1), (12, 1), (24, 1), (12, 2))) -> None:
     from axialmix.dem import (
         DEMRun,
         cell_length_limit,
@@ -75,7 +76,8 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
     r = np.hypot(run.positions[:, :, 0], run.positions[:, :, 1])
     print("\ncells        lag (s)  v net (mm/s) [95 %]        D_z net (mm²/s) [95 %]   clipped"
           "  CK err/noise  tracer err/floor: one start, phase-averaged (err/floor)")
-    for n_cells, n_radial in ((6, 1), (12, 1), (24, 1), (12, 2)):
+    print(f"networks estimated by {estimator}")
+    for n_cells, n_radial in layouts:
         cells = axial_cells(z, g.length, n_cells, periodic=True, radius=r,
                             vessel_radius=g.radius, n_radial=n_radial)
         n = n_cells * n_radial
@@ -83,7 +85,7 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
         for lag_s in lags:
             lag = max(1, round(lag_s / dt))
             learned = learn_network(cells[:half], n, dt, lag, round(g.revolution_time / dt),
-                                    centres=centres, period=g.length)
+                                    centres=centres, period=g.length, estimator=estimator)
             v, d = learned.transport()
             (vlo, vhi), (dlo, dhi) = learned.transport_interval()
             test = markov_test(cells[:half], n, dt, (lag,), ck_steps=(2, 4))
@@ -113,10 +115,15 @@ def main() -> None:
                         help="with --section: lags of the learned networks, s (comma-separated)")
     parser.add_argument("--delays", default="1,2,4",
                         help="with --section: tracer delays compared, s (comma-separated)")
+    parser.add_argument("--estimator", default="logm", choices=("logm", "likelihood"),
+                        help="with --section: how rates are estimated from the counts")
+    parser.add_argument("--layouts", default="6x1,12x1,24x1,12x2",
+                        help="with --section: axial x radial cells (comma-separated)")
     args = parser.parse_args()
     if args.section:
         section(args.section, tuple(float(x) for x in args.lags.split(",")),
-                tuple(float(x) for x in args.delays.split(",")))
+                tuple(float(x) for x in args.delays.split(",")), args.estimator,
+                tuple(tuple(int(v) for v in x.split("x")) for x in args.layouts.split(",")))
         return
     if args.quick:
         mixer = BladedMixer(particles=(300, 300), diameter=0.0082)

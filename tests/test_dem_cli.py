@@ -65,6 +65,17 @@ def test_learn_writes_a_network_that_axialmix_reads(tmp_path):
                        "--cells", "6", "--bootstrap", "50", "--out", str(again))
     assert result.returncode == 0, result.stderr
     assert CompartmentNetwork.from_json(again / "network.json") == network
+    # The likelihood estimator: a network on the connections seen from frame to frame.
+    likely = tmp_path / "likely"
+    result = _axialmix("dem", "learn", "--run", str(out / "run.npz"), "--lag", "0.04",
+                       "--cells", "6", "--bootstrap", "20", "--estimator", "likelihood",
+                       "--out", str(likely))
+    assert result.returncode == 0, result.stderr
+    record = json.loads((likely / "learn.json").read_text())
+    assert record["estimator"] == "likelihood"
+    assert record["network"]["clipped_rate_share"] == 0
+    learned = CompartmentNetwork.from_json(likely / "network.json")
+    assert learned.n_compartments == 6 and all(c.rate > 0 for c in learned.connections)
 
 
 @pytest.mark.skipif(not dem_available(), reason="the dem extra is not installed")

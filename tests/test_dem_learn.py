@@ -17,6 +17,8 @@ from axialmix.dem._learn import (
     count_matrix,
     learn_network,
     markov_test,
+    observed_edges,
+    rates_by_likelihood,
     rates_from_counts,
     sequences_from_particle_events,
 )
@@ -86,6 +88,53 @@ def test_rates_recover_an_exact_transition_matrix():
     rates, clipped = rates_from_counts(counts, 0.1)
     np.testing.assert_allclose(rates, q, atol=1e-9)
     assert clipped == 0
+
+
+def _random_ring(seed, n=6):
+    rng = np.random.default_rng(seed)
+    q = np.zeros((n, n))
+    for i in range(n):
+        q[i, (i + 1) % n], q[i, (i - 1) % n] = rng.uniform(2, 4), rng.uniform(0.5, 1.5)
+    q -= np.diag(q.sum(axis=1))
+    return q, np.argwhere(q > 0)
+
+
+@pytest.mark.parametrize("lag", [0.1, 0.5, 1.0])
+def test_likelihood_rates_recover_an_exact_transition_matrix(lag):
+    # Counts proportional to exp(Q tau) of a drifting ring (up to three cells of drift a
+    # lag): the rates of largest likelihood on the ring's connections are Q.
+    for seed in range(3):
+        q, edges = _random_ring(seed)
+        counts = 1e6 * scipy.linalg.expm(q * lag)
+        np.testing.assert_allclose(rates_by_likelihood(counts, lag, edges), q, rtol=0,
+                                   atol=1e-9 * np.abs(q).max())
+
+
+def _log_likelihood(counts, rates, lag):
+    return float(np.sum(counts * np.log(np.clip(scipy.linalg.expm(rates * lag), 1e-300, None))))
+
+
+def test_likelihood_network_is_valid_and_at_least_as_likely_as_the_clipped_logarithm():
+    # Sampled counts of a few hundred transitions a row: the matrix logarithm needs negative
+    # rates and is clipped; the likelihood estimate (started from it) keeps the ring's
+    # connections only, with positive rates, and explains the counts at least as well.
+    rng = np.random.default_rng(4)
+    q, edges = _random_ring(1)
+    lag = 0.5
+    exact = scipy.linalg.expm(q * lag)
+    counts = np.stack([rng.multinomial(300, row / row.sum()) for row in exact]).astype(float)
+    clipped_rates, clipped = rates_from_counts(counts, lag)
+    assert clipped > 0
+    rates = rates_by_likelihood(counts, lag, edges)
+    off = ~np.eye(6, dtype=bool)
+    assert np.all(rates[off & (q > 0)] > 0) and np.all(rates[off & (q == 0)] == 0)
+    np.testing.assert_allclose(rates.sum(axis=1), 0.0, atol=1e-12)
+    assert _log_likelihood(counts, rates, lag) >= _log_likelihood(counts, clipped_rates, lag)
+
+
+def test_observed_edges_are_the_moves_from_frame_to_frame():
+    sequences = np.array([[0, 1], [1, 1], [1, 2], [2, 0]])
+    assert observed_edges(sequences, 3).tolist() == [[0, 1], [1, 2], [2, 0]]
 
 
 def test_all_particles_tracked_give_the_exact_moves():

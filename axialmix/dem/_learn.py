@@ -41,6 +41,8 @@ __all__ = [
     "count_matrix",
     "learn_network",
     "markov_test",
+    "observed_edges",
+    "rates_by_likelihood",
     "rates_from_counts",
     "sequences_from_particle_events",
 ]
@@ -184,6 +186,84 @@ def rates_from_counts(counts: np.ndarray, lag_seconds: float) -> tuple[np.ndarra
     return (rates[0] if single else rates), clipped
 
 
+def observed_edges(sequences: np.ndarray, n_states: int) -> np.ndarray:
+    """The connections a network of these cells can have: pairs ``(i, j)``, ``i != j``, seen
+    as consecutive cells of one particle from one frame to the next (neighbours in space:
+    between two frames a particle crosses into an adjacent cell, not across the vessel).
+
+    **Returns:** ``(m, 2)`` integer array of ``(from, to)`` cells.
+    """
+    counts = count_matrix(sequences, n_states, 1)
+    i, j = np.nonzero((counts > 0) & ~np.eye(n_states, dtype=bool))
+    return np.stack([i, j], axis=1)
+
+
+def _likelihood_program(n: int, edges: np.ndarray, lag_seconds: float):
+    """``(theta, counts) -> (negative log-likelihood per count, gradient)`` of the network
+    with rates ``exp(theta)`` on `edges` (jitted; JAX)."""
+    import jax
+    import jax.numpy as jnp
+
+    source, target = jnp.asarray(edges[:, 0]), jnp.asarray(edges[:, 1])
+
+    def negative_log_likelihood(theta, counts):
+        rates = jnp.zeros((n, n)).at[source, target].set(jnp.exp(theta))
+        generator = rates - jnp.diag(rates.sum(axis=1))
+        transition = jax.scipy.linalg.expm(generator * lag_seconds)
+        log_p = jnp.log(jnp.clip(transition, 1e-300, None))
+        return -jnp.sum(counts * log_p) / jnp.maximum(jnp.sum(counts), 1.0)
+
+    return jax.jit(jax.value_and_grad(negative_log_likelihood))
+
+
+def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarray,
+                        start: np.ndarray | None = None) -> np.ndarray:
+    """Rate matrix of largest likelihood of the transition counts, with rates on `edges` only.
+
+    The network's transition matrix at the lag is ``P = expm(Q tau)``; the counts' log
+    likelihood is ``sum_ij C_ij log P_ij`` (a multinomial for each row). Maximised over the
+    rates of the given connections (``Q_ij = exp(theta_ij) > 0``, L-BFGS with the exact
+    gradient), it is always a valid network, whatever the lag, where ``log T / tau`` can need
+    negative rates (a lag at which the motion is not Markov, or one over which the drift
+    carries a particle across several cells: the matrix logarithm then takes the wrong
+    branch).
+
+    **Arguments:** `counts` ``(n, n)`` or a batch ``(m, n, n)``; `lag_seconds` ``tau``, s;
+    `edges` ``(k, 2)`` allowed ``(from, to)`` pairs (:func:`observed_edges`); `start` rate
+    matrix (1/s) to start from (default: :func:`rates_from_counts`'s, on the edges, each at
+    least a thousandth of their mean).
+
+    **Returns:** ``Q`` of the shape of `counts`, 1/s (rows sum to zero).
+    """
+    from scipy.optimize import minimize
+
+    counts = np.asarray(counts, dtype=float)
+    single = counts.ndim == 2
+    counts = counts[None] if single else counts
+    n = counts.shape[-1]
+    edges = np.asarray(edges, dtype=int).reshape(-1, 2)
+    program = _likelihood_program(n, edges, float(lag_seconds))
+    out = np.zeros(counts.shape)
+    for k, c in enumerate(counts):
+        guess = rates_from_counts(c, lag_seconds)[0] if start is None else np.asarray(start)
+        first = guess[edges[:, 0], edges[:, 1]]
+        floor = 1e-3 * max(float(np.mean(first[first > 0])) if np.any(first > 0) else 0.0,
+                           1e-6 / lag_seconds)
+        theta0 = np.log(np.maximum(first, floor))
+
+        def objective(theta, c=c):
+            value, gradient = program(theta, c)
+            return float(value), np.asarray(gradient, float)
+
+        best = minimize(objective, theta0, jac=True, method="L-BFGS-B",
+                        options={"maxiter": 5000, "ftol": 1e-15, "gtol": 1e-12})
+        rates = np.zeros((n, n))
+        rates[edges[:, 0], edges[:, 1]] = np.exp(best.x)
+        rates[np.arange(n), np.arange(n)] = -rates.sum(axis=1)
+        out[k] = rates
+    return out[0] if single else out
+
+
 @dataclass(frozen=True, eq=False)
 class LearnedNetwork:
     """A compartment network learned from cell sequences, with bootstrap uncertainty.
@@ -290,6 +370,7 @@ def learn_network(
     names: tuple[str, ...] | None = None,
     centres: np.ndarray | None = None,
     period: float | None = None,
+    estimator: str = "logm",
 ) -> LearnedNetwork:
     """Learn a continuous-time network from cell sequences, with block-bootstrap intervals.
 
@@ -303,20 +384,32 @@ def learn_network(
     - `n_bootstrap`: bootstrap replicates; `seed` their random seed.
     - `names`, `centres`, `period`: cell names (default ``C1``...), axial centres (m) and the
       axial period of a periodic section (m), for :meth:`LearnedNetwork.transport`.
+    - `estimator`: ``"logm"``, ``Q = log T / tau`` with negative rates clipped
+      (:func:`rates_from_counts`), or ``"likelihood"``, the rates of largest likelihood on
+      the connections seen from frame to frame (:func:`rates_by_likelihood`: a valid network
+      at any lag; each bootstrap replicate is refitted, starting from the whole run's rates).
 
-    **Returns:** a :class:`LearnedNetwork`.
+    **Returns:** a :class:`LearnedNetwork` (`clipped` is 0 for the likelihood estimator).
     """
+    if estimator not in ("logm", "likelihood"):
+        raise ValueError(f"estimator must be 'logm' or 'likelihood', got {estimator!r}.")
     sequences = np.asarray(sequences)
     if sequences.size and (sequences.min() < 0 or sequences.max() >= n_states):
         raise ValueError(f"cell indices must lie in 0..{n_states - 1}.")
     tau = lag * float(frame_interval)
     blocks = block_count_matrices(sequences, n_states, lag, block_frames)
     total = blocks.sum(axis=0)
-    rates, clipped = rates_from_counts(total, tau)
     rng = np.random.default_rng(seed)
     draws = rng.integers(0, blocks.shape[0], size=(n_bootstrap, blocks.shape[0]))
     weights = np.stack([np.bincount(d, minlength=blocks.shape[0]) for d in draws])
-    replicates = rates_from_counts(np.einsum("rb,bij->rij", weights, blocks), tau)[0]
+    resampled = np.einsum("rb,bij->rij", weights, blocks)
+    if estimator == "logm":
+        rates, clipped = rates_from_counts(total, tau)
+        replicates = rates_from_counts(resampled, tau)[0]
+    else:
+        edges = observed_edges(sequences, n_states)
+        rates, clipped = rates_by_likelihood(total, tau, edges), 0.0
+        replicates = rates_by_likelihood(resampled, tau, edges, start=rates)
     lower, upper = np.percentile(replicates, [2.5, 97.5], axis=0)
     holdups = np.bincount(sequences.ravel(), minlength=n_states) / sequences.shape[0]
     return LearnedNetwork(

@@ -99,6 +99,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     learn.add_argument("--lag", type=_positive, default=0.1, help="lag, s (default 0.1)")
     learn.add_argument("--bootstrap", type=_count, default=200,
                        help="bootstrap replicates (default 200)")
+    learn.add_argument("--estimator", choices=("logm", "likelihood"), default="logm",
+                       help="rates from the counts: the matrix logarithm with negative rates "
+                       "clipped (default), or the rates of largest likelihood on the "
+                       "connections seen from frame to frame (a valid network at any lag)")
     for name, helptext in (("hybrid", "hybrid run of the source's bladed mixer"),
                            ("validate", "hybrid against a full DEM run of the mixer")):
         sub = actions.add_parser(name, help=helptext)
@@ -196,7 +200,8 @@ def _learn(args, out: Path) -> int:
                   for a in range(args.cells) for k in range(args.radial))
     learned = learn_network(cells, n, run.frame_interval, lag, block,
                             n_bootstrap=args.bootstrap, seed=args.seed, names=names,
-                            centres=centres, period=g.length if g.periodic else None)
+                            centres=centres, period=g.length if g.periodic else None,
+                            estimator=args.estimator)
     transport = dem_transport(run)
     v, d = learned.transport()
     (vlo, vhi), (dlo, dhi) = learned.transport_interval()
@@ -215,6 +220,7 @@ def _learn(args, out: Path) -> int:
         "geometry": type(g).__name__, "particles": run.n_particles,
         "frames": run.n_frames, "frame_interval_s": run.frame_interval,
         "lag_s": learned.lag_seconds, "cells": n, "cell_length_m": width,
+        "estimator": args.estimator,
         "dem": {"v_m_per_s": transport.velocity, "D_z_m2_per_s": transport.dispersion,
                 "D_z_window_s": list(transport.window), "Pe": transport.peclet,
                 "blender_length_m": transport.blender_length,
