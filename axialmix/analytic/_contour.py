@@ -58,8 +58,10 @@ def _earliest_nonzero_theta(peclet: jax.Array) -> jax.Array:
     return 2.0 * peclet / ((2.0 * peclet + k) + jnp.sqrt(k * (4.0 * peclet + k)))
 
 
-def _line_integrals(theta: jax.Array, peclet: jax.Array, nodes: int):
-    """Return E(theta) and F(theta) for theta above the underflow limit (elementwise)."""
+def _line(theta: jax.Array, peclet: jax.Array, nodes: int):
+    """The quadrature line of each theta (a trailing axis of ``nodes + 1`` points):
+    ``(theta, Pe, q, phi, weights)``, theta and Pe with that axis, and the trapezoidal
+    weights (the step over pi included) of the integral of the real part."""
     theta = theta[..., None]
     peclet = jnp.asarray(peclet)[..., None]
     pe_theta = peclet * theta
@@ -74,23 +76,28 @@ def _line_integrals(theta: jax.Array, peclet: jax.Array, nodes: int):
     from_saddle = (line - saddle) + 1j * y
     q = line + 1j * y
     phi = 0.25 * pe_theta * from_saddle**2 - peclet * (1.0 - theta) ** 2 / (4.0 * theta)
+    weights = jnp.ones(nodes + 1).at[0].set(0.5) * step / jnp.pi
+    return theta, peclet, q, phi, weights
+
+
+def _line_integrals(theta: jax.Array, peclet: jax.Array, nodes: int):
+    """Return E(theta) and F(theta) for theta above the underflow limit (elementwise)."""
+    theta, peclet, q, phi, weights = _line(theta, peclet, nodes)
     growth = jnp.exp(phi)
     # Overflow-safe denominator: (1+q)² - (1-q)² e^{-q Pe} = q (4 + Pe (1-q)² exprel(-q Pe)).
     relative_growth = exprel(-q * peclet)
     denominator = 4.0 + peclet * (1.0 - q) ** 2 * relative_growth
-    weights = jnp.ones(nodes + 1).at[0].set(0.5)
     exit_age_integrand = growth * 2.0 * peclet * q / denominator
     # F: the pole of G/s at q = 1 is removed by subtracting e^phi / (q - 1), whose line integral
     # is erfc(sqrt(Pe/theta) (1 - theta) / 2) / 2; what remains is analytic there.
     step_integrand = (
         growth * (4.0 + (1.0 - q**2) * peclet * relative_growth) / ((1.0 + q) * denominator)
     )
-    scale = step[..., 0] / jnp.pi
-    exit_age = scale * jnp.sum(weights * exit_age_integrand.real, axis=-1)
+    exit_age = jnp.sum(weights * exit_age_integrand.real, axis=-1)
     theta = theta[..., 0]
     peclet = peclet[..., 0]
     plug_flow = 0.5 * erfc(0.5 * jnp.sqrt(peclet / theta) * (1.0 - theta))
-    step_response = plug_flow + scale * jnp.sum(weights * step_integrand.real, axis=-1)
+    step_response = plug_flow + jnp.sum(weights * step_integrand.real, axis=-1)
     return exit_age, step_response
 
 
@@ -105,28 +112,15 @@ def _exit_age_slopes(theta: jax.Array, peclet: jax.Array, nodes: int):
     derivatives are two more sums over the same nodes: no tangent is carried through the
     complex arithmetic.
     """
-    theta = theta[..., None]
-    peclet = jnp.asarray(peclet)[..., None]
-    pe_theta = peclet * theta
-    offset = jax.lax.stop_gradient(jnp.sqrt(4.0 * OFFSET_EXPONENT / pe_theta))
-    height = jax.lax.stop_gradient(jnp.sqrt(4.0 * TRUNCATION_EXPONENT / pe_theta))
-    step = height / nodes
-    saddle = 1.0 / theta
-    line = jax.lax.stop_gradient(saddle + offset)
-    y = jnp.arange(nodes + 1) * step
-    from_saddle = (line - saddle) + 1j * y
-    q = line + 1j * y
-    phi = 0.25 * pe_theta * from_saddle**2 - peclet * (1.0 - theta) ** 2 / (4.0 * theta)
+    _, peclet, q, phi, weights = _line(theta, peclet, nodes)
     # Re(q Pe) > 0 on the line, so e^{-q Pe} - 1 never vanishes and needs no guard.
     change = jnp.expm1(-q * peclet)
     squared = (1.0 - q) ** 2
     reciprocal = 1.0 / (4.0 - squared * change / q)
-    weights = jnp.ones(nodes + 1).at[0].set(0.5)
     integrand = jnp.exp(phi) * (2.0 * peclet) * q * reciprocal
     by_theta = integrand * (0.25 * peclet * (q * q - 1.0))
     by_peclet = integrand * ((1.0 + phi) / peclet - squared * (1.0 + change) * reciprocal)
-    scale = step[..., 0] / jnp.pi
-    return tuple(scale * jnp.sum(weights * part.real, axis=-1)
+    return tuple(jnp.sum(weights * part.real, axis=-1)
                  for part in (integrand, by_theta, by_peclet))
 
 
