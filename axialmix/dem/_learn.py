@@ -256,7 +256,7 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
             return float(value), np.asarray(gradient, float)
 
         best = minimize(objective, theta0, jac=True, method="L-BFGS-B",
-                        options={"maxiter": 5000, "ftol": 1e-15, "gtol": 1e-12})
+                        options={"maxiter": 2000, "ftol": 1e-13, "gtol": 1e-9})
         rates = np.zeros((n, n))
         rates[edges[:, 0], edges[:, 1]] = np.exp(best.x)
         rates[np.arange(n), np.arange(n)] = -rates.sum(axis=1)
