@@ -75,7 +75,7 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
     z = run.positions[:, :, 2]
     r = np.hypot(run.positions[:, :, 0], run.positions[:, :, 1])
     print("\ncells        lag (s)  v net (mm/s) [95 %]        D_z net (mm²/s) [95 %]   clipped"
-          "  CK err/noise  tracer err/floor: one start, phase-averaged (err/floor)")
+          "  CK err/noise  tracer err/floor: one start, phase-averaged (err/floor), own chain, DEM itself")
     print(f"networks estimated by {estimator}")
     for n_cells, n_radial in layouts:
         cells = axial_cells(z, g.length, n_cells, periodic=True, radius=r,
@@ -99,11 +99,45 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
             one = tracer_spreading(cells, learned, dt, half, delays, n_radial=n_radial)
             starts = np.arange(half, run.n_frames - max(delays), round(0.05 / dt))
             spread = tracer_spreading(cells, learned, dt, starts, delays, n_radial=n_radial)
+            oracle = own_chain_error(cells, n, n_radial, lag, starts, delays, spread)
+            # The DEM predicting itself: the tracer released over the first half against the
+            # same tracer over the second half (the run's slow, shared fluctuations, which
+            # two halves of the spheres of one window do not see).
+            early = tracer_spreading(cells, learned, dt, np.arange(0, half - max(delays),
+                                                                  round(0.05 / dt)),
+                                     delays, n_radial=n_radial)
+            window = float(np.abs(early.dem - spread.dem).mean() / spread.floor.mean())
             label = f"{n_cells}x{n_radial} ({g.length / n_cells * 1e3:.0f} mm)"
             print(f"{label:12s} {lag * dt:6.2f}  {v * 1e3:7.2f} [{vlo * 1e3:6.2f},{vhi * 1e3:6.2f}]"
                   f"   {d * 1e6:7.1f} [{dlo * 1e6:6.1f},{dhi * 1e6:6.1f}]   {learned.clipped:5.2f}"
                   f"   {ck:6.2f}     {one.ratio:5.2f}      {spread.ratio:5.2f} "
-                  f"({spread.error.mean():.4f}/{spread.floor.mean():.4f})", flush=True)
+                  f"({spread.error.mean():.4f}/{spread.floor.mean():.4f})"
+                  f"   {oracle:6.2f}   {window:6.2f}", flush=True)
+    print("own chain: the second half's own transition matrix at the lag, T^(delay/lag) from "
+          "the tracer's start cells, against the same DEM fractions (err/floor): what any "
+          "Markov chain on these cells at this lag can reach (1 where the cells are Markov); "
+          "DEM itself: the tracer over the first half against the tracer over the second "
+          "(err/floor), the run's own window-to-window difference")
+
+
+def own_chain_error(cells, n, n_radial, lag, starts, delays, spread) -> float:
+    """Error over the noise floor of the second half's own empirical chain ``T(lag)^k``
+    (NaN where a delay is not a whole number of lags)."""
+    from axialmix.dem import count_matrix
+
+    if any(d % lag for d in delays):
+        return float("nan")
+    counts = count_matrix(cells[starts[0]:], n, lag)
+    transition = counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
+    p0 = np.zeros(n)
+    for s0 in starts:
+        members = cells[s0] // n_radial == 0
+        p0 += np.bincount(cells[s0][members], minlength=n) / members.sum()
+    p0 /= len(starts)
+    errors = [np.abs(spread.dem[k] - (p0 @ np.linalg.matrix_power(transition, d // lag))
+                     .reshape(-1, n_radial).sum(axis=1)).mean()
+              for k, d in enumerate(delays)]
+    return float(np.mean(errors) / spread.floor.mean())
 
 
 def main() -> None:
