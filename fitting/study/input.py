@@ -22,6 +22,7 @@ is one.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import math
 from collections.abc import Sequence
@@ -90,9 +91,9 @@ class Study:
     def __len__(self) -> int:
         return len(self.curves)
 
-    @property
+    @functools.cached_property
     def ids(self) -> tuple[str, ...]:
-        """The curve ids, in study order."""
+        """The curve ids, in study order (made once: a study's curves are fixed)."""
         return tuple(curve.name for curve in self.curves)
 
     def factor_row(self, index: int) -> dict[str, str]:
