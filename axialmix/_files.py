@@ -66,11 +66,12 @@ def json_text(data: Mapping[str, Any]) -> str:
     return json.dumps(data, indent=2, allow_nan=False) + "\n"
 
 
-def csv_text(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    """A CSV table with one header line, as text."""
+def csv_text(header: Sequence[str] | None, rows: Sequence[Sequence[Any]]) -> str:
+    """A CSV table with one header line (none when `header` is None), as text."""
     stream = io.StringIO(newline="")
     writer = csv.writer(stream)
-    writer.writerow(header)
+    if header is not None:
+        writer.writerow(header)
     writer.writerows(rows)
     return stream.getvalue()
 

@@ -56,7 +56,7 @@ from typing import Any
 
 import equinox as eqx
 
-from axialmix._files import write_atomic, write_csv, write_json
+from axialmix._files import csv_text, write_atomic, write_csv, write_json, write_text
 from axialmix._progress import progress_bar
 from fitting.data import Curve
 from fitting.fit import fit, fit_many
@@ -319,9 +319,9 @@ class StudyRun:
             taken.add(stem)
             self.stems[name] = stem
         self._columns: tuple[list[str], list[str], list[str]] | None = None
-        #: Finished curves: ``{id: summary-table row}``; their records stay in the journal,
-        #: found by :attr:`_offsets` (so memory holds table rows only).
-        self.done: dict[str, list[Any]] = {}
+        #: Finished curves: ``{id: summary-table row as its CSV line}``; their records stay
+        #: in the journal, found by :attr:`_offsets` (so memory holds a line of text a curve).
+        self.done: dict[str, str] = {}
         #: Curves that could not be fitted, with their one-line reasons: those the study
         #: left out as read, then those refused by the fit (kept in the journal as well).
         self.refused: dict[str, str] = dict(study.refused)
@@ -394,8 +394,8 @@ class StudyRun:
         if self._columns is None:
             self._columns = summary_columns(row["record"], self.study.factors)
         _, names, extra = self._columns
-        self.done[row["curve"]] = summary_row(row["curve"], row["levels"], row["record"],
-                                             names, extra)
+        self.done[row["curve"]] = csv_text(None, [summary_row(row["curve"], row["levels"],
+                                                            row["record"], names, extra)])
         self._offsets[row["curve"]] = (offset, size)
 
     def _append(self, indices: Sequence[int], records: Sequence[Mapping[str, Any]]) -> None:
@@ -450,8 +450,8 @@ class StudyRun:
     def _write_table(self) -> None:
         began = time.monotonic()
         header = self._columns[0] if self._columns else ["curve", *self.study.factors]
-        rows = [self.done[name] for name in sorted(self.done, key=self.index.__getitem__)]
-        write_csv(self.folder / "summary.csv", header, rows)
+        lines = [self.done[name] for name in sorted(self.done, key=self.index.__getitem__)]
+        write_text(self.folder / "summary.csv", csv_text(header, []) + "".join(lines))
         if self.refused:
             write_csv(self.folder / "refused.csv", ["curve", "reason"],
                       [[name, reason] for name, reason in self.refused.items()])
