@@ -75,7 +75,8 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
     z = run.positions[:, :, 2]
     r = np.hypot(run.positions[:, :, 0], run.positions[:, :, 1])
     print("\ncells        lag (s)  v net (mm/s) [95 %]        D_z net (mm²/s) [95 %]   clipped"
-          "  CK err/noise  tracer err/floor: one start, phase-averaged (err/floor), own chain, DEM itself")
+          "  CK err/noise  tracer err/floor: one start, phase-averaged (err/floor), own chain, "
+          "DEM itself")
     print(f"networks estimated by {estimator}")
     for n_cells, n_radial in layouts:
         cells = axial_cells(z, g.length, n_cells, periodic=True, radius=r,

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fitting.fit import fit_many, prepare
-from fitting.optima import OtherOptimum, other_optima
+from fitting.optima import other_optima
 from fitting.residuals import LACK_OF_FIT_LEVEL, LackOfFit, lack_of_fit_test
 from fitting.result import FitResult
 from fitting.solve import (

@@ -686,7 +686,8 @@ def comparison_table(comparison: ModelComparison, wide: bool = False) -> str:
                          _number(comparison.bic[i], 6), _verdict(result.lack_of_fit.to_dict()),
                          "yes" if result.converged else "no"])
             text = ", ".join(_parameter_cells(result, "±"))
-            lines.append(textwrap.fill(text, TABLE_WIDTH, initial_indent=f"  {comparison.names[i]}: ",
+            lines.append(textwrap.fill(text, TABLE_WIDTH,
+                                       initial_indent=f"  {comparison.names[i]}: ",
                                        subsequent_indent="    "))
         return "\n".join([textwrap.fill(title, TABLE_WIDTH), text_table(header, rows),
                           "fitted parameters (value±std. error):", *lines,

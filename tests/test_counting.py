@@ -103,7 +103,8 @@ def test_merged_bins_keep_the_totals_and_expect_enough_counts():
     # Each merged bin's mean is the sum of its bins.
     bounds = np.append(first, expected.size)
     np.testing.assert_allclose(means, [expected[a:b].sum() for a, b in zip(bounds[:-1],
-                                                                            bounds[1:])])
+                                                                            bounds[1:],
+                                                                            strict=True)])
 
 
 def test_counting_weights_are_exposure_over_model():

@@ -151,3 +151,21 @@ def test_hybrid_conserves_particles_and_species():
     np.testing.assert_array_equal(hybrid.counts[:, 4:].sum(axis=2),
                                   np.broadcast_to(start[4:].sum(axis=1), (hybrid.times.size, 6)))
     assert hybrid.compartment_cpu_seconds >= 0 and hybrid.dem_cpu_seconds > 0
+
+
+def test_tracer_ratio_cannot_be_given_without_a_noise_floor():
+    import warnings
+
+    from axialmix.dem import TracerSpreading
+
+    still = np.zeros((2, 3))
+    spread = TracerSpreading(times=np.array([0.1, 0.2]), dem=still, predicted=still + 0.1,
+                             halves=np.stack([still, still]), error=np.full(2, 0.1),
+                             floor=np.zeros(2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isnan(spread.ratio)
+    moving = TracerSpreading(times=spread.times, dem=still, predicted=still,
+                             halves=spread.halves, error=np.array([0.2, 0.4]),
+                             floor=np.array([0.1, 0.1]))
+    assert moving.ratio == pytest.approx(3.0, rel=1e-15)

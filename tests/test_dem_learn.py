@@ -274,3 +274,43 @@ def json_text(data):
     import json
 
     return json.dumps(data)
+
+
+# Count matrices whose transition matrix has no accurate real logarithm (scipy's logm of
+# each, exponentiated, misses the matrix by more than a tenth of its 1-norm).
+NO_LOGARITHM = (
+    [[2, 2, 0, 0], [1, 1, 0, 0], [0, 1, 0, 0], [0, 0, 0, 1]],
+    [[1, 0, 0, 0], [2, 1, 0, 0], [0, 0, 0, 1], [0, 2, 0, 0]],
+    [[0, 0, 1, 0], [2, 0, 2, 0], [0, 0, 1, 0], [0, 1, 0, 2]],
+)
+
+
+@pytest.mark.parametrize("counts", NO_LOGARITHM)
+def test_a_matrix_without_an_accurate_logarithm_gives_no_rates(counts):
+    counts = np.array(counts, float)
+    transition = counts / counts.sum(axis=1, keepdims=True)
+    log = np.real(scipy.linalg.logm(transition))
+    error = np.linalg.norm(scipy.linalg.expm(log) - transition, 1)
+    assert not error < 1e-1  # the premise: scipy's logarithm is far off (or not a number)
+    rates, clipped = rates_from_counts(counts, 1.0)
+    assert np.isnan(rates).all() and clipped == 0.0
+    good = np.array([[9.0, 1, 0, 0], [1, 8, 1, 0], [0, 1, 8, 1], [0, 0, 1, 9]])
+    batch, _ = rates_from_counts(np.stack([counts, good]), 1.0)
+    assert np.isnan(batch[0]).all() and np.isfinite(batch[1]).all()
+    np.testing.assert_allclose(batch[1], rates_from_counts(good, 1.0)[0], rtol=0, atol=1e-14)
+
+
+def test_learning_refuses_a_run_without_a_rate_matrix_and_counts_failed_replicates():
+    # Three frames of six particles whose moves give the first matrix's transition matrix.
+    tracks = [(0, 0, 1), (1, 0, 0), (2, 1, 1), (3, 3, 3), (0, 1, 0), (2, 1, 1)]
+    sequences = np.array(tracks).T
+    counts, wanted = count_matrix(sequences, 4, 1), np.array(NO_LOGARITHM[0], float)
+    np.testing.assert_array_equal(counts / counts.sum(axis=1, keepdims=True),
+                                  wanted / wanted.sum(axis=1, keepdims=True))
+    with pytest.raises(ValueError, match="no accurate real matrix logarithm"):
+        learn_network(sequences, 4, 1.0, 1, 1, n_bootstrap=10)
+    network, _, _ = _ring()
+    learned = learn_network(_tracked_sequences(network, 600, seed=2), N_CELLS, DT, 1, 50,
+                            n_bootstrap=50)
+    assert learned.failed == 0 and learned.replicates.shape[0] == 50
+    assert np.isfinite(learned.lower).all()

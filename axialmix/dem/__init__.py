@@ -35,9 +35,9 @@ from ._learn import (
     cell_length_limit,
     count_matrix,
     learn_network,
+    markov_test,
     observed_edges,
     rates_by_likelihood,
-    markov_test,
     rates_from_counts,
     sequences_from_particle_events,
 )

@@ -118,8 +118,13 @@ class TracerSpreading:
 
     @property
     def ratio(self) -> float:
-        """Mean error over the mean noise floor (about 1 for a network that is exact)."""
-        return float(self.error.mean() / self.floor.mean())
+        """Mean error over the mean noise floor (about 1 for a network that is exact).
+
+        NaN when the floor is zero: the tracer's halves never differ (it stayed in its cells
+        over the delays compared), and nothing can be judged against it.
+        """
+        floor = float(self.floor.mean())
+        return float(self.error.mean() / floor) if floor > 0 else float("nan")
 
 
 def tracer_spreading(cells: np.ndarray, learned: LearnedNetwork, frame_interval: float,

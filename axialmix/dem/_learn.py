@@ -144,8 +144,17 @@ def block_count_matrices(
     return flat.reshape(n_blocks, n_states, n_states).astype(float)
 
 
+#: Largest relative error of a matrix logarithm that is used, ``||exp(L) - T||_1 / ||T||_1``
+#: for the real logarithm ``L`` scipy finds; a transition matrix whose logarithm misses it (a
+#: singular or defective matrix, or one with negative eigenvalues: a lag at which some cell
+#: is left for good) has no rate matrix.
+LOG_TOLERANCE = 1e-8
+
+
 def _matrix_log(matrices: np.ndarray) -> np.ndarray:
-    # log T = V log(Lambda) V^-1 for a batch; scipy's logm where V is ill-conditioned.
+    # log T = V log(Lambda) V^-1 for a batch; scipy's logm where V is ill-conditioned. A
+    # logarithm whose exponential misses T by more than LOG_TOLERANCE is NaN (not a number
+    # that looks like a rate).
     values, vectors = np.linalg.eig(matrices)
     out = np.empty(matrices.shape, dtype=float)
     for k in range(matrices.shape[0]):
@@ -153,7 +162,13 @@ def _matrix_log(matrices: np.ndarray) -> np.ndarray:
             log = vectors[k] @ np.diag(np.log(values[k].astype(complex))) @ np.linalg.inv(
                 vectors[k])
         else:
-            log = scipy.linalg.logm(matrices[k])
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # its accuracy is measured instead
+                log = np.real(scipy.linalg.logm(matrices[k]))
+                error = (np.linalg.norm(scipy.linalg.expm(log) - matrices[k], 1)
+                         / np.linalg.norm(matrices[k], 1))
+            if not (np.isfinite(error) and error <= LOG_TOLERANCE):
+                log = np.full(matrices.shape[1:], np.nan)
         out[k] = np.real(log)
     return out
 
@@ -165,7 +180,9 @@ def rates_from_counts(counts: np.ndarray, lag_seconds: float) -> tuple[np.ndarra
 
     **Returns:** ``(Q, clipped)``: ``Q`` of the shape of `counts`, in 1/s (rows sum to zero,
     off-diagonal entries non-negative), and the largest share of a cell's leaving rate removed
-    by clipping. A cell never visited gets zero rates.
+    by clipping. A cell never visited gets zero rates. A transition matrix whose logarithm
+    cannot be computed to :data:`LOG_TOLERANCE` gives a rate matrix of NaN (and `clipped` is
+    taken over the others).
     """
     counts = np.asarray(counts, dtype=float)
     single = counts.ndim == 2
@@ -182,7 +199,7 @@ def rates_from_counts(counts: np.ndarray, lag_seconds: float) -> tuple[np.ndarra
     rates[..., np.arange(n), np.arange(n)] = -leaving
     rates[~visited] = 0
     share = negative / np.maximum(leaving + negative, 1e-300)
-    clipped = float(share[visited].max(initial=0.0))
+    clipped = float(np.nan_to_num(share[visited], nan=0.0).max(initial=0.0))
     return (rates[0] if single else rates), clipped
 
 
@@ -230,8 +247,9 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
 
     **Arguments:** `counts` ``(n, n)`` or a batch ``(m, n, n)``; `lag_seconds` ``tau``, s;
     `edges` ``(k, 2)`` allowed ``(from, to)`` pairs (:func:`observed_edges`); `start` rate
-    matrix (1/s) to start from (default: :func:`rates_from_counts`'s, on the edges, each at
-    least a thousandth of their mean).
+    matrix (1/s) to start from (default: :func:`rates_from_counts`'s, or the first-order
+    ``T_ij / tau`` where the counts' matrix has no logarithm, on the edges, each at least a
+    thousandth of their mean).
 
     **Returns:** ``Q`` of the shape of `counts`, 1/s (rows sum to zero).
     """
@@ -246,6 +264,8 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
     out = np.zeros(counts.shape)
     for k, c in enumerate(counts):
         guess = rates_from_counts(c, lag_seconds)[0] if start is None else np.asarray(start)
+        if not np.isfinite(guess).all():  # no matrix logarithm: first-order rates T_ij / tau
+            guess = _transition(c) / lag_seconds
         first = guess[edges[:, 0], edges[:, 1]]
         floor = 1e-3 * max(float(np.mean(first[first > 0])) if np.any(first > 0) else 0.0,
                            1e-6 / lag_seconds)
@@ -281,6 +301,11 @@ class LearnedNetwork:
     - `period`: axial period, m, for a periodic section (distances wrap), else ``None``.
     - `clipped`: largest share of a cell's leaving rate removed by clipping negative rates.
     - `blocks`: number of bootstrap blocks; `block_seconds` their length, s.
+    - `failed`: bootstrap replicates left out because their transition matrix has no
+      accurate logarithm (``"logm"`` estimator: a block resample in which a cell is left for
+      good); `replicates` holds the others. When more than :data:`FAILED_SHARE` of the
+      replicates failed, the intervals cannot be given: `lower`, `upper` and
+      :meth:`transport_interval` are NaN.
     """
 
     names: tuple[str, ...]
@@ -297,6 +322,7 @@ class LearnedNetwork:
     clipped: float
     blocks: int
     block_seconds: float
+    failed: int = 0
 
     @property
     def n_cells(self) -> int:
@@ -354,8 +380,15 @@ class LearnedNetwork:
 
     def transport_interval(self) -> tuple[np.ndarray, np.ndarray]:
         """95 % bootstrap intervals of ``v`` (m/s) and ``D_z`` (m²/s): two ``(2,)`` arrays."""
+        if not np.isfinite(self.lower).all():
+            return np.full(2, np.nan), np.full(2, np.nan)
         values = np.array([self.transport(r) for r in self.replicates])
         return (np.percentile(values[:, 0], [2.5, 97.5]), np.percentile(values[:, 1], [2.5, 97.5]))
+
+
+#: Largest share of bootstrap replicates that may fail (no accurate matrix logarithm) for the
+#: intervals still to be given from the others.
+FAILED_SHARE = 0.05
 
 
 def learn_network(
@@ -389,7 +422,11 @@ def learn_network(
       the connections seen from frame to frame (:func:`rates_by_likelihood`: a valid network
       at any lag; each bootstrap replicate is refitted, starting from the whole run's rates).
 
-    **Returns:** a :class:`LearnedNetwork` (`clipped` is 0 for the likelihood estimator).
+    **Returns:** a :class:`LearnedNetwork` (`clipped` is 0 for the likelihood estimator;
+    `failed` counts the replicates left out of the intervals).
+
+    **Raises:** ``ValueError`` when, with ``"logm"``, the whole run's transition matrix has no
+    accurate logarithm (:data:`LOG_TOLERANCE`).
     """
     if estimator not in ("logm", "likelihood"):
         raise ValueError(f"estimator must be 'logm' or 'likelihood', got {estimator!r}.")
@@ -405,12 +442,23 @@ def learn_network(
     resampled = np.einsum("rb,bij->rij", weights, blocks)
     if estimator == "logm":
         rates, clipped = rates_from_counts(total, tau)
+        if not np.isfinite(rates).all():
+            raise ValueError(
+                f"the transition matrix at lag {tau:g} s has no accurate real matrix logarithm "
+                "(no rate matrix gives it at this lag): use a shorter lag or "
+                "estimator='likelihood'.")
         replicates = rates_from_counts(resampled, tau)[0]
     else:
         edges = observed_edges(sequences, n_states)
         rates, clipped = rates_by_likelihood(total, tau, edges), 0.0
         replicates = rates_by_likelihood(resampled, tau, edges, start=rates)
-    lower, upper = np.percentile(replicates, [2.5, 97.5], axis=0)
+    usable = np.isfinite(replicates).all(axis=(1, 2))
+    failed = int(n_bootstrap - usable.sum())
+    replicates = replicates[usable]
+    if failed > FAILED_SHARE * n_bootstrap:
+        lower = upper = np.full(rates.shape, np.nan)
+    else:
+        lower, upper = np.percentile(replicates, [2.5, 97.5], axis=0)
     holdups = np.bincount(sequences.ravel(), minlength=n_states) / sequences.shape[0]
     return LearnedNetwork(
         names=tuple(names) if names is not None else tuple(f"C{i + 1}" for i in range(n_states)),
@@ -418,7 +466,7 @@ def learn_network(
         lag_seconds=tau, lag_frames=int(lag), holdups=holdups,
         centres=None if centres is None else np.asarray(centres, float),
         period=period, clipped=clipped, blocks=int(blocks.shape[0]),
-        block_seconds=block_frames * float(frame_interval),
+        block_seconds=block_frames * float(frame_interval), failed=failed,
     )
 
 
