@@ -4,8 +4,8 @@
 the four-compartment particle blender (nominal k_f = k_r = 2.125 1/s, k_s = 0.625 1/s,
 k_out = 1 1/s, steps of 0.01 s; its whole-particle moves make the rates it runs slightly
 different, see :func:`simulated_truth`; tau = 6.25 s); ``axialmix fit`` reads its counts and
-fits them with counting (Poisson) errors. This script runs both through the command line, the path users
-take, for many seeds, and prints
+fits them with counting (Poisson) errors. This script runs both through the command line, the
+path users take, for many seeds, and prints
 
 * the false-alarm rate of the lack-of-fit verdict (the particle model is the network's
   stochastic version, so every alarm is false; three tests at 1 % each: about 3 % expected);
