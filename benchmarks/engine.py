@@ -6,8 +6,10 @@ over 0–3 tau, 2 % noise of the peak), fitted as a study fits them (measurement
 holding 1, 64 or 1,024 curves (unused lanes idle). Each row is a fresh process with an empty
 compilation cache, so its compile time is real; curves per second are timed after
 compilation (a second pass over the same curves). The last row fits a long study through
-``fitting.study.batch.StudyRun`` (records written to a temporary folder) and reports the
-process's peak resident memory, which the chunk bounds, not the study.
+``fitting.study.batch.StudyRun`` (records written to a temporary folder), at a tenth of its
+size and at its size, and reports the resident memory when the run starts (the curves the
+caller holds) and the process's peak: the run's own share, the peak above the start, is
+bounded by the chunk, not the study.
 
     python benchmarks/engine.py [--curves 2000] [--study 100000]
 """
@@ -63,14 +65,21 @@ sys.path.pop(0)
 from fitting.study.batch import StudyPlan, StudyRun
 from fitting.solve import enable_compilation_cache
 enable_compilation_cache()
-study, tau, peclet, _ = benchmark_study.synthetic_study(%(count)d, 7)
+study = benchmark_study.synthetic_study(%(count)d, 7)[0]  # the curves only (no exact values)
+
+
+def resident_kb():
+    return int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE") // 1024
+
+
 plan = StudyPlan("adm")
 with tempfile.TemporaryDirectory(dir=os.getcwd()) as folder:  # a disk folder, as --out is
     run = StudyRun(plan, study, folder, 256)
+    before = resident_kb()  # Python, JAX and the study's curves in memory
     began = time.perf_counter()
     run.run(progress=False)
     seconds = time.perf_counter() - began
-print(json.dumps({"seconds": seconds,
+print(json.dumps({"seconds": seconds, "before_kb": before,
                   "rss_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}))
 """
 
@@ -100,11 +109,17 @@ def main() -> None:
               f"{args.curves / row['seconds']:>10.1f}{row['rss_kb'] / 1024:>13.0f}  "
               f"{'yes' if row['same'] else 'NO'}", flush=True)
     if args.study:
-        with tempfile.TemporaryDirectory() as cache:
-            row = run(STUDY % {"here": str(_HERE), "count": args.study}, cache)
-        print(f"\nstudy of {args.study} curves through StudyRun (chunks of 256 curves): "
-              f"{row['seconds']:.1f} s, {args.study / row['seconds']:.1f} curves/s, peak RSS "
-              f"{row['rss_kb'] / 1024:.0f} MB")
+        print("\nstudies through StudyRun (chunks of 256 curves), each in a fresh process; "
+              "'before' is the resident memory when the run starts (Python, JAX and the "
+              "study's curves, which the caller holds), 'run's own' the peak above it")
+        print(f"{'curves':>8}{'seconds':>9}{'curves/s':>10}{'before MB':>11}{'peak RSS MB':>13}"
+              f"{'run own MB':>12}")
+        for count in (max(args.study // 10, 1), args.study):
+            with tempfile.TemporaryDirectory() as cache:
+                row = run(STUDY % {"here": str(_HERE), "count": count}, cache)
+            print(f"{count:>8}{row['seconds']:>9.1f}{count / row['seconds']:>10.1f}"
+                  f"{row['before_kb'] / 1024:>11.0f}{row['rss_kb'] / 1024:>13.0f}"
+                  f"{(row['rss_kb'] - row['before_kb']) / 1024:>12.0f}", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 
