@@ -59,6 +59,7 @@ def test_learn_writes_a_network_that_axialmix_reads(tmp_path):
     record = json.loads((out / "learn.json").read_text())
     assert record["particles"] == 300 and record["cells"] == 6
     assert np.isfinite(record["dem"]["D_z_m2_per_s"])
+    assert record["network"]["bootstrap_replicates_without_rates"] == 0
     # Learning again from the saved run gives the same network.
     again = tmp_path / "again"
     result = _axialmix("dem", "learn", "--run", str(out / "run.npz"), "--lag", "0.04",

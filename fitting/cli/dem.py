@@ -184,12 +184,16 @@ def _learn(args, out: Path) -> int:
                             f"revolutions ({2 * geometry.revolution_time:g} s) beyond the lag")
         run = run_dem(geometry, settings)
         ran = True
+        out.mkdir(parents=True, exist_ok=True)
+        run.save(out / "run.npz")  # kept whatever the learning below says
+    kept = f" (the DEM run is kept in {out / 'run.npz'}: give it with --run)" if ran else ""
     g = run.geometry
     lag = max(1, round(args.lag / run.frame_interval))
     block = max(1, round(g.revolution_time / run.frame_interval))
     if run.n_frames - lag < 2 * block:
         raise _BadInput(f"the run has {run.n_frames} frames; two revolutions of "
-                        f"{block} frames beyond the lag are needed (a longer --duration)")
+                        f"{block} frames beyond the lag are needed (a longer --duration)"
+                        + kept)
     r = np.hypot(run.positions[:, :, 0], run.positions[:, :, 1])
     cells = axial_cells(run.positions[:, :, 2], g.length, args.cells, periodic=g.periodic,
                         radius=r, vessel_radius=g.radius, n_radial=args.radial)
@@ -198,10 +202,13 @@ def _learn(args, out: Path) -> int:
     centres = np.repeat((np.arange(args.cells) + 0.5) * width, args.radial)
     names = tuple(f"z{a + 1}" + (f"r{k + 1}" if args.radial > 1 else "")
                   for a in range(args.cells) for k in range(args.radial))
-    learned = learn_network(cells, n, run.frame_interval, lag, block,
-                            n_bootstrap=args.bootstrap, seed=args.seed, names=names,
-                            centres=centres, period=g.length if g.periodic else None,
-                            estimator=args.estimator)
+    try:
+        learned = learn_network(cells, n, run.frame_interval, lag, block,
+                                n_bootstrap=args.bootstrap, seed=args.seed, names=names,
+                                centres=centres, period=g.length if g.periodic else None,
+                                estimator=args.estimator)
+    except ValueError as error:
+        raise _BadInput(f"{error}{kept}") from None
     transport = dem_transport(run)
     v, d = learned.transport()
     (vlo, vhi), (dlo, dhi) = learned.transport_interval()
@@ -209,8 +216,6 @@ def _learn(args, out: Path) -> int:
                        tuple(sorted({lag, 2 * lag, 4 * lag, max(1, lag // 2)})), base_lag=lag,
                        ck_steps=(2, 4))
     out.mkdir(parents=True, exist_ok=True)
-    if ran:
-        run.save(out / "run.npz")
     learned.network().to_json(out / "network.json")
     rows = [(names[i], names[j], learned.rates[i, j], learned.lower[i, j], learned.upper[i, j])
             for i, j in learned.connections()]
@@ -227,7 +232,8 @@ def _learn(args, out: Path) -> int:
                 "lags_s": transport.lags.tolist(),
                 "D_z_at_lag_m2_per_s": transport.lag_dispersion.tolist()},
         "network": {"v_m_per_s": v, "v_95": [vlo, vhi], "D_z_m2_per_s": d, "D_z_95": [dlo, dhi],
-                    "clipped_rate_share": learned.clipped, "blocks": learned.blocks},
+                    "clipped_rate_share": learned.clipped, "blocks": learned.blocks,
+                    "bootstrap_replicates_without_rates": learned.failed},
         "cell_length_limit_m": cell_length_limit(transport.velocity, transport.dispersion),
         "markov": {"lags_s": test.lags_seconds.tolist(), "timescales_s": test.timescales.tolist(),
                    "ck_steps": test.ck_steps.tolist(), "ck_error": test.ck_error.tolist(),
