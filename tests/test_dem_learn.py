@@ -314,3 +314,35 @@ def test_learning_refuses_a_run_without_a_rate_matrix_and_counts_failed_replicat
                             n_bootstrap=50)
     assert learned.failed == 0 and learned.replicates.shape[0] == 50
     assert np.isfinite(learned.lower).all()
+
+
+@pytest.mark.parametrize("failing", [5, 20])
+def test_replicates_without_rates_are_left_out_and_too_many_give_no_interval(monkeypatch,
+                                                                            failing):
+    # The first `failing` of 200 replicates are made to have no matrix logarithm.
+    import axialmix.dem._learn as learn
+
+    original = learn.rates_from_counts
+
+    def some_fail(counts, lag_seconds):
+        rates, clipped = original(counts, lag_seconds)
+        if np.ndim(counts) == 3:
+            rates = rates.copy()
+            rates[:failing] = np.nan
+        return rates, clipped
+
+    network, _, _ = _ring()
+    sequences = _tracked_sequences(network, 600, seed=2)
+    whole = learn_network(sequences, N_CELLS, DT, 1, 50, n_bootstrap=200)
+    monkeypatch.setattr(learn, "rates_from_counts", some_fail)
+    learned = learn_network(sequences, N_CELLS, DT, 1, 50, n_bootstrap=200)
+    assert learned.failed == failing and learned.replicates.shape[0] == 200 - failing
+    np.testing.assert_array_equal(learned.rates, whole.rates)
+    np.testing.assert_array_equal(learned.replicates, whole.replicates[failing:])
+    if failing <= learn.FAILED_SHARE * 200:
+        np.testing.assert_array_equal(learned.lower,
+                                      np.percentile(whole.replicates[failing:], 2.5, axis=0))
+        assert np.isfinite(learned.upper).all()
+    else:
+        assert np.isnan(learned.lower).all() and np.isnan(learned.upper).all()
+        assert all(np.isnan(interval).all() for interval in learned.transport_interval())
