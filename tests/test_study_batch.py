@@ -316,3 +316,47 @@ def test_chunks_on_two_threads_give_the_records_of_one_thread(tmp_path):
         summaries.append(records)
     assert [r["curve"] for r in summaries[1]] == list(study.ids)
     assert summaries[1] == summaries[0]
+
+
+def test_finished_curves_hold_no_memory_of_their_own(long_csv, tmp_path):
+    """A study's memory is that of its chunks: a finished curve keeps only where its record
+    and summary line lie on disk, so the run's retained memory does not grow with the curves
+    it has finished (the old run kept about 1.5 KB a curve: its table line, offsets, names)."""
+    import tracemalloc
+
+    template = read_long_csv(long_csv, "run")
+    count = 3000
+    curve = template.curves[0]
+    curves = tuple(Curve(f"curve {i:05d}", curve.time, curve.value, time_unit=curve.time_unit,
+                         value_unit=curve.value_unit) for i in range(count))
+    study = type(template)(curves, template.factors, (template.levels[0],) * count,
+                           (None,) * count, "synthetic")
+    plan = StudyPlan("adm", length_m=LENGTH_M)
+    record = fit_chunk(plan, [curve])[0]
+    run = StudyRun(plan, study, tmp_path, chunk=250)
+    run._append(range(250), [record] * 250)  # the one-off allocations (columns, files)
+
+    def append(first: int, last: int) -> None:
+        for start in range(first, last, 250):
+            run._append(range(start, start + 250), [record] * 250)
+        for write in run._file_writes:
+            write.result()
+
+    tracemalloc.start()
+    try:
+        append(250, 1000)
+        before = tracemalloc.take_snapshot()
+        append(1000, count)
+        after = tracemalloc.take_snapshot()
+    finally:
+        tracemalloc.stop()
+    grown = sum(stat.size_diff for stat in after.compare_to(before, "filename"))
+    per_curve = grown / (count - 1000)
+    assert per_curve < 64, f"{per_curve:.0f} bytes retained per finished curve"
+    run.write_summary()
+    with open(tmp_path / "summary.csv", newline="") as stream:
+        rows = list(csv.DictReader(stream))
+    assert [row["curve"] for row in rows] == list(study.ids)
+    assert rows[0] == {**rows[-1], "curve": rows[0]["curve"]}
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["n_fitted"] == count and len(summary["curves"]) == count

@@ -13,9 +13,10 @@ study around the fits:
   gradient and Jacobian (tested bit for bit). A curve with its own measured inlet signal has
   its own model, so its own program (compiled for that curve alone: slow for many curves).
 * **Chunks.** Curves are fitted in chunks (:data:`DEFAULT_CHUNK` curves); only a chunk's
-  results are held before they are written, and afterwards only their summary-table rows
-  (the full records stay in the journal and are streamed from it into ``summary.json``), so
-  memory grows by a table row per curve, not by a fit.
+  results are held before they are written; afterwards the records stay in the journal and
+  their summary-table lines in a temporary file beside it, and memory keeps only where each
+  lies (32 bytes a curve): a study's memory is that of its chunks in flight, whatever the
+  number of curves. ``summary.csv`` and ``summary.json`` are streamed from those files.
 * **Resumable.** Each finished chunk is appended to the journal ``summary.jsonl`` in the
   output folder (its first line describes the study and the settings; then one JSON line per
   curve) by one ``write`` and ``fsync`` (each curve's record in ``curves/`` is written beside
@@ -48,15 +49,17 @@ import logging
 import math
 import os
 import sys
+import tempfile
 import threading
 import time
-from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import equinox as eqx
+import numpy as np
 
-from axialmix._files import csv_text, write_atomic, write_csv, write_json, write_text
+from axialmix._files import csv_text, write_atomic, write_csv, write_json
 from axialmix._progress import progress_bar
 from fitting.data import Curve
 from fitting.fit import fit, fit_many
@@ -307,28 +310,35 @@ class StudyRun:
         self.header = {"study": study.source, "digest": study.digest(), "n_curves": len(study),
                        "factors": list(study.factors), "plan": plan.describe(),
                        "plots": self.plots}
-        self.index = {name: i for i, name in enumerate(study.ids)}
-        #: Each curve's file name stem in ``curves/``: :func:`curve_file_stem`, with the
-        #: study position appended to a stem an earlier curve took.
-        self.stems: dict[str, str] = {}
+        #: Each curve's file name stem in ``curves/`` (:meth:`stem`): :func:`curve_file_stem`,
+        #: with the study position appended to a stem an earlier curve took; only those
+        #: renamed stems are kept, by study position.
+        self._renamed: dict[int, str] = {}
         taken: set[str] = set()
         for position, name in enumerate(study.ids):
             stem = curve_file_stem(name)
             if stem in taken:
                 stem = f"{stem}-{position + 1}"
+                self._renamed[position] = stem
             taken.add(stem)
-            self.stems[name] = stem
+        del taken
         self._columns: tuple[list[str], list[str], list[str]] | None = None
-        #: Finished curves: ``{id: summary-table row as its CSV line}``; their records stay
-        #: in the journal, found by :attr:`_offsets` (so memory holds a line of text a curve).
-        self.done: dict[str, str] = {}
+        #: Finished curves, by study position: where each one's record lies in the journal and
+        #: its summary-table line in :attr:`_rows` (offset and size in bytes, -1 while not
+        #: finished). Memory holds these 32 bytes a curve, whatever the study's size; the
+        #: records and lines themselves stay on disk.
+        self._finished = np.full((len(study), 4), -1, dtype=np.int64)
+        self._count = 0
+        #: The summary-table lines of the finished curves, as they finished (a temporary
+        #: file, gone when the run is; a resumed run rebuilds it from the journal).
+        self._rows = tempfile.TemporaryFile(dir=self.folder, prefix=".summary-rows-")
         #: Curves that could not be fitted, with their one-line reasons: those the study
         #: left out as read, then those refused by the fit (kept in the journal as well).
         self.refused: dict[str, str] = dict(study.refused)
-        self._offsets: dict[str, tuple[int, int]] = {}
-        #: Curves whose ``curves/`` record this run has written (as their chunk finished),
-        #: by :attr:`_writer`, a thread of its own; :attr:`_file_writes` are its tasks.
-        self._filed: set[str] = set()
+        #: Curves (study positions) whose ``curves/`` record this run has written (as their
+        #: chunk finished), by :attr:`_writer`, a thread of its own; :attr:`_file_writes` are
+        #: its tasks.
+        self._filed = np.zeros(len(study), dtype=bool)
         self._writer = concurrent.futures.ThreadPoolExecutor(1, "axialmix-records")
         self._file_writes: list[concurrent.futures.Future] = []
         #: When ``summary.csv`` was last rewritten (monotonic s), and how long that took.
@@ -336,13 +346,24 @@ class StudyRun:
         self._table_seconds = 0.0
         self._resume()
         #: Curves the journal held when this run began.
-        self.resumed = len(self.done)
+        self.resumed = self._count
+
+    @property
+    def done(self) -> int:
+        """The number of finished (fitted and journaled) curves."""
+        return self._count
+
+    def stem(self, position: int) -> str:
+        """The file name stem in ``curves/`` of the curve at study `position`."""
+        renamed = self._renamed.get(position)
+        return renamed if renamed is not None else curve_file_stem(self.study.ids[position])
 
     @property
     def pending(self) -> list[int]:
         """Indices (study order) of the curves not fitted yet."""
-        return [i for i, name in enumerate(self.study.ids)
-                if name not in self.done and name not in self.refused]
+        ids, refused = self.study.ids, self.refused
+        return [int(i) for i in np.flatnonzero(self._finished[:, 0] < 0)
+                if ids[i] not in refused]
 
     def _resume(self) -> None:
         if not self.journal.exists():
@@ -370,6 +391,7 @@ class StudyRun:
             raise ValueError(f"{self.journal}: holds a study fitted {earlier} --plots; continue "
                              f"it {earlier} --plots (so that every curve has its PNG or none "
                              "has), or choose another --out folder")
+        index = {name: i for i, name in enumerate(self.study.ids)}
         offset = len(lines[0]) + 1
         for line in lines[1:-1]:
             try:
@@ -377,26 +399,31 @@ class StudyRun:
             except ValueError:  # torn by a kill during its write: fitted again
                 kept = offset
                 break
-            if row.get("curve") not in self.index:
+            position = index.get(row.get("curve"))
+            if position is None:
                 raise ValueError(f"{self.journal}: curve {row.get('curve')!r} is not in the "
                                  "study")
-            if row["curve"] not in self.done and row["curve"] not in self.refused:
-                self._keep(row, offset, len(line))
+            if self._finished[position, 0] < 0 and row["curve"] not in self.refused:
+                self._keep(position, row, offset, len(line))
             offset += len(line) + 1
         if kept < len(data):
             with open(self.journal, "r+b") as stream:
                 stream.truncate(kept)
 
-    def _keep(self, row: Mapping[str, Any], offset: int, size: int) -> None:
+    def _keep(self, position: int, row: Mapping[str, Any], offset: int, size: int) -> None:
         if "refused" in row["record"]:
             self.refused[row["curve"]] = row["record"]["refused"]
             return
         if self._columns is None:
             self._columns = summary_columns(row["record"], self.study.factors)
         _, names, extra = self._columns
-        self.done[row["curve"]] = csv_text(None, [summary_row(row["curve"], row["levels"],
-                                                            row["record"], names, extra)])
-        self._offsets[row["curve"]] = (offset, size)
+        line = csv_text(None, [summary_row(row["curve"], row["levels"], row["record"], names,
+                                           extra)]).encode("utf-8")
+        self._rows.seek(0, os.SEEK_END)
+        start = self._rows.tell()
+        self._rows.write(line)
+        self._finished[position] = (offset, size, start, len(line))
+        self._count += 1
 
     def _append(self, indices: Sequence[int], records: Sequence[Mapping[str, Any]]) -> None:
         rows = [{"curve": self.study.ids[i], "levels": list(self.study.levels[i]),
@@ -408,10 +435,18 @@ class StudyRun:
         # summary waits for them, and a resumed run rewrites every earlier curve's file.
         folder = self.folder / CURVE_FOLDER
         folder.mkdir(exist_ok=True)
-        files = [(folder / f"{self.stems[row['curve']]}.json", self._curve_record(row))
-                 for row in rows]
-        self._file_writes.append(self._writer.submit(
-            lambda: [write_json(path, record) for path, record in files]))
+        files = [(folder / f"{self.stem(i)}.json", self._curve_record(row))
+                 for i, row in zip(indices, rows, strict=True)]
+        def write_files() -> None:
+            for path, record in files:
+                write_json(path, record)
+
+        # Finished writes are let go (a write's error is raised here, at the next chunk):
+        # what a study holds does not grow with its chunks.
+        for write in [w for w in self._file_writes if w.done()]:
+            self._file_writes.remove(write)
+            write.result()
+        self._file_writes.append(self._writer.submit(write_files))
         with self.lock:
             handle = os.open(self.journal, os.O_WRONLY | os.O_APPEND)
             try:
@@ -422,10 +457,10 @@ class StudyRun:
                 os.fsync(handle)
             finally:
                 os.close(handle)
-            for row, line in zip(rows, lines, strict=True):
-                self._keep(row, offset, len(line) - 1)
+            for i, row, line in zip(indices, rows, lines, strict=True):
+                self._keep(i, row, offset, len(line) - 1)
                 offset += len(line)
-            self._filed.update(row["curve"] for row in rows)
+            self._filed[list(indices)] = True
             if time.monotonic() - self._table_written >= max(1.0, 10.0 * self._table_seconds):
                 self._write_table()
 
@@ -435,23 +470,33 @@ class StudyRun:
         return {"curve": row["curve"],
                 "factors": {f: factor_value(v) for f, v in levels.items()}, **row["record"]}
 
-    def records(self, skip: Collection[str] = ()) -> Iterator[dict[str, Any]]:
+    def records(self, skip: np.ndarray | None = None) -> Iterator[dict[str, Any]]:
         """The finished curves' records (:func:`fitting.report.fit_record`, with ``curve``
         and ``factors``), in study order, read back from the journal one at a time; `skip`:
-        curve ids left out."""
-        names = sorted((n for n in self._offsets if n not in skip),
-                       key=self.index.__getitem__)
+        a boolean mask over study positions of curves left out."""
+        finished = self._finished[:, 0] >= 0
+        if skip is not None:
+            finished &= ~skip
         with open(self.journal, "rb") as stream:
-            for name in names:
-                offset, size = self._offsets[name]
+            for position in np.flatnonzero(finished):
+                offset, size = self._finished[position, :2]
                 stream.seek(offset)
                 yield self._curve_record(json.loads(stream.read(size)))
 
     def _write_table(self) -> None:
+        """``summary.csv`` in study order, streamed from :attr:`_rows` (and ``refused.csv``)."""
         began = time.monotonic()
         header = self._columns[0] if self._columns else ["curve", *self.study.factors]
-        lines = [self.done[name] for name in sorted(self.done, key=self.index.__getitem__)]
-        write_text(self.folder / "summary.csv", csv_text(header, []) + "".join(lines))
+        self._rows.flush()
+
+        def fill(stream) -> None:
+            stream.write(csv_text(header, []).encode("utf-8"))
+            rows = self._rows.fileno()
+            for position in np.flatnonzero(self._finished[:, 2] >= 0):
+                start, size = self._finished[position, 2:]
+                stream.write(os.pread(rows, int(size), int(start)))
+
+        write_atomic(self.folder / "summary.csv", fill, binary=True)
         if self.refused:
             write_csv(self.folder / "refused.csv", ["curve", "reason"],
                       [[name, reason] for name, reason in self.refused.items()])
@@ -466,8 +511,8 @@ class StudyRun:
             head = {"study": self.study.source, "model": self.plan.model,
                     "factors": list(self.study.factors),
                     "n_curves": len(self.study) + len(self.study.refused),
-                    "n_fitted": len(self.done), "n_refused": len(self.refused),
-                    "complete": len(self.done) + len(self.refused)
+                    "n_fitted": self._count, "n_refused": len(self.refused),
+                    "complete": self._count + len(self.refused)
                     == len(self.study) + len(self.study.refused),
                     "refused": [{"curve": name, "reason": reason}
                                 for name, reason in self.refused.items()],
@@ -496,8 +541,9 @@ class StudyRun:
             write.result()  # raises what a write raised
         folder = self.folder / CURVE_FOLDER
         folder.mkdir(exist_ok=True)
-        for record in self.records(skip=self._filed):
-            write_json(folder / f"{self.stems[record['curve']]}.json", record)
+        positions = np.flatnonzero((self._finished[:, 0] >= 0) & ~self._filed)
+        for position, record in zip(positions, self.records(skip=self._filed), strict=True):
+            write_json(folder / f"{self.stem(int(position))}.json", record)
 
     def _write_images(self, indices: Sequence[int], images: Sequence[bytes | None]) -> None:
         """Each drawn curve's PNG, atomically, into ``curves/<stem>.png``."""
@@ -505,7 +551,7 @@ class StudyRun:
         folder.mkdir(exist_ok=True)
         for i, image in zip(indices, images, strict=True):
             if image is not None:
-                write_png(folder / f"{self.stems[self.study.ids[i]]}.png", image)
+                write_png(folder / f"{self.stem(i)}.png", image)
 
     def _chunks(self) -> Iterator[list[int]]:
         pending = self.pending

@@ -161,7 +161,7 @@ class _StudyExecution(Supervised):
                 run.write_summary()
         finally:
             self.lock.release()
-            exit_now(f"axialmix fit: interrupted after {len(run.done)} of {len(run.study)} "
+            exit_now(f"axialmix fit: interrupted after {run.done} of {len(run.study)} "
                      f"curves; run the same command again to continue ({self.out})")
 
     def _work(self) -> None:
