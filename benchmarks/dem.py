@@ -17,8 +17,13 @@ With ``--section``, a recorded periodic paddle section (``axialmix dem learn`` w
 ``run.npz``) is analysed instead: v, D_z and its lag dependence from the tracks through
 axialmix.trajectories; networks learned on the first half of the run for several cell layouts
 and lags, their equivalent ADM, Markov test, and how well each predicts the spreading of a
-tracer in the second half against the DEM's own noise floor (from two random halves of the
-tracer).
+tracer in the second half against the DEM's own noise floor: from two random halves of the
+tracer (their sampling noise alone), and (axialmix.dem.repeat_floor) from the same tracer over
+the run's two halves and, with ``--second``, over an independent run of the same section
+(another seed), floors that hold what the whole bed shares.
+
+    python benchmarks/dem.py --section A/run.npz --second B/run.npz --estimator likelihood \
+        --layouts 24x1,24x2,24x4,48x3 --lags 0.5,1.0 --bootstrap 0
 
 The mixer is the source's geometry (radius 0.1 m, length 0.5 m; see axialmix.dem.BladedMixer)
 with 1,500 + 1,500 spheres of 8.2 mm: the same 5 % solid fill as the source's 5,000 + 5,000
@@ -48,16 +53,23 @@ N_REGIONS = 10
 
 def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
             delays_s: tuple[float, ...] = (1.0, 2.0, 4.0), estimator: str = "logm",
-            layouts: tuple[tuple[int, int], ...] = ((6, 1), (12, 1), (24, 1), (12, 2))) -> None:
+            layouts: tuple[tuple[int, int], ...] = ((6, 1), (12, 1), (24, 1), (12, 2)),
+            second: str | None = None, bootstrap: int = 200) -> None:
     from axialmix.dem import (
         DEMRun,
         cell_length_limit,
         dem_transport,
         markov_test,
+        repeat_floor,
         tracer_spreading,
     )
 
     run = DEMRun.load(path)
+    other = DEMRun.load(second) if second else None
+    if other is not None and (other.geometry != run.geometry or other.n_frames != run.n_frames
+                              or not np.isclose(other.frame_interval, run.frame_interval)):
+        raise SystemExit(f"{second}: not a run of the same section, frames and interval as "
+                         f"{path}")
     g = run.geometry
     dt = run.frame_interval
     print(f"paddle section: {run.n_particles} spheres, {run.times[-1]:.2f} s recorded every "
@@ -76,11 +88,18 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
     r = np.hypot(run.positions[:, :, 0], run.positions[:, :, 1])
     print("\ncells        lag (s)  v net (mm/s) [95 %]        D_z net (mm²/s) [95 %]   clipped"
           "  CK err/noise  tracer err/floor: one start, phase-averaged (err/floor), own chain, "
-          "DEM itself")
-    print(f"networks estimated by {estimator}")
+          "DEM itself | err over the floor of two windows, of two runs")
+    print(f"networks estimated by {estimator}"
+          + (f"; second run {second}" if other is not None else ""))
+    z_other = other.positions[:, :, 2] if other is not None else None
+    r_other = (np.hypot(other.positions[:, :, 0], other.positions[:, :, 1])
+               if other is not None else None)
     for n_cells, n_radial in layouts:
         cells = axial_cells(z, g.length, n_cells, periodic=True, radius=r,
                             vessel_radius=g.radius, n_radial=n_radial)
+        cells_other = (axial_cells(z_other, g.length, n_cells, periodic=True, radius=r_other,
+                                   vessel_radius=g.radius, n_radial=n_radial)
+                       if other is not None else None)
         n = n_cells * n_radial
         centres = np.repeat((np.arange(n_cells) + 0.5) * g.length / n_cells, n_radial)
         for lag_s in lags:
@@ -88,7 +107,8 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
             label = f"{n_cells}x{n_radial} ({g.length / n_cells * 1e3:.0f} mm)"
             try:
                 learned = learn_network(cells[:half], n, dt, lag, round(g.revolution_time / dt),
-                                        centres=centres, period=g.length, estimator=estimator)
+                                        centres=centres, period=g.length, estimator=estimator,
+                                        n_bootstrap=bootstrap)
             except ValueError as refusal:  # no rate matrix gives T at this lag
                 print(f"{label:12s} {lag * dt:6.2f}  {refusal}", flush=True)
                 continue
@@ -113,18 +133,31 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
                                                                   round(0.05 / dt)),
                                      delays, n_radial=n_radial)
             window = float(np.abs(early.dem - spread.dem).mean() / spread.floor.mean())
+            # The floors of two equivalent measurements (axialmix.dem.repeat_floor): the same
+            # tracer over the first and the second half of this run, and over the second half
+            # of an independent run (another seed), when one is given.
+            by_windows = spread.error.mean() / repeat_floor(early, spread).mean()
+            if cells_other is not None:
+                twin = tracer_spreading(cells_other, learned, dt, starts, delays,
+                                        n_radial=n_radial)
+                by_runs = f"{spread.error.mean() / repeat_floor(spread, twin).mean():6.2f}"
+            else:
+                by_runs = "     -"
             print(f"{label:12s} {lag * dt:6.2f}  {v * 1e3:7.2f} [{vlo * 1e3:6.2f},{vhi * 1e3:6.2f}]"
                   f"   {d * 1e6:7.1f} [{dlo * 1e6:6.1f},{dhi * 1e6:6.1f}]   {learned.clipped:5.2f}"
                   f"   {ck:6.2f}     {one.ratio:5.2f}      {spread.ratio:5.2f} "
                   f"({spread.error.mean():.4f}/{spread.floor.mean():.4f})"
-                  f"   {oracle:6.2f}   {window:6.2f}"
+                  f"   {oracle:6.2f}   {window:6.2f} | {by_windows:6.2f} {by_runs}"
                   + (f"   ({learned.failed} of the bootstrap replicates have no rates)"
                      if learned.failed else ""), flush=True)
     print("own chain: the second half's own transition matrix at the lag, T^(delay/lag) from "
           "the tracer's start cells, against the same DEM fractions (err/floor): what any "
           "Markov chain on these cells at this lag can reach (1 where the cells are Markov); "
           "DEM itself: the tracer over the first half against the tracer over the second "
-          "(err/floor), the run's own window-to-window difference")
+          "(err/floor), the run's own window-to-window difference; the last two: the "
+          "network's error over axialmix.dem.repeat_floor of the two windows, and of this "
+          "run and the second run (--second), the floors that hold what the whole bed "
+          "shares")
 
 
 def own_chain_error(cells, n, n_radial, lag, starts, delays, spread) -> float:
@@ -158,13 +191,19 @@ def main() -> None:
                         help="with --section: tracer delays compared, s (comma-separated)")
     parser.add_argument("--estimator", default="logm", choices=("logm", "likelihood"),
                         help="with --section: how rates are estimated from the counts")
+    parser.add_argument("--second", default=None, metavar="RUN",
+                        help="an independent run of the same section (another seed): the "
+                             "noise floor of two runs")
+    parser.add_argument("--bootstrap", type=int, default=200,
+                        help="bootstrap replicates of each network (0: no intervals)")
     parser.add_argument("--layouts", default="6x1,12x1,24x1,12x2",
                         help="with --section: axial x radial cells (comma-separated)")
     args = parser.parse_args()
     if args.section:
         section(args.section, tuple(float(x) for x in args.lags.split(",")),
                 tuple(float(x) for x in args.delays.split(",")), args.estimator,
-                tuple(tuple(int(v) for v in x.split("x")) for x in args.layouts.split(",")))
+                tuple(tuple(int(v) for v in x.split("x")) for x in args.layouts.split(",")),
+                args.second, args.bootstrap)
         return
     if args.quick:
         mixer = BladedMixer(particles=(300, 300), diameter=0.0082)

@@ -18,6 +18,7 @@ from axialmix.dem import (
     flux_partition,
     learn_network,
     region_counts,
+    repeat_floor,
     tracer_spreading,
     velocity_partition,
 )
@@ -169,3 +170,52 @@ def test_tracer_ratio_cannot_be_given_without_a_noise_floor():
                              halves=spread.halves, error=np.array([0.2, 0.4]),
                              floor=np.array([0.1, 0.1]))
     assert moving.ratio == pytest.approx(3.0, rel=1e-15)
+
+
+def _ring_cells(seed: int, n: int = 8):
+    sources, targets, moves = [], [], []
+    for i in range(n):
+        sources += [i, i]
+        targets += [(i + 1) % n, (i - 1) % n]
+        moves += [12, 6]
+    ring = ParticleNetwork(np.full(n, 300), sources, targets, moves, step_seconds=0.01)
+    initial = np.column_stack([np.full(n, 200), np.full(n, 100)])
+    result = simulate(ring, initial, 2000, engine="identity", seed=seed, tracked_species=[1])
+    return sequences_from_particle_events(result, 1)
+
+
+def test_floor_of_two_independent_runs_is_the_sampling_floor_without_shared_motion():
+    """Particles that move independently share nothing: the floor of two independent runs
+    (repeat_floor) is then the floor of two halves of one run's tracer, on average."""
+    n = 8
+    ratios = []
+    for seed in range(0, 8, 2):
+        first, second = _ring_cells(seed), _ring_cells(seed + 1)
+        learned = learn_network(first[:1000], n, 0.01, 1, 100, n_bootstrap=0)
+        a = tracer_spreading(first, learned, 0.01, 1000, (10, 30, 60))
+        b = tracer_spreading(second, learned, 0.01, 1000, (10, 30, 60))
+        floor = repeat_floor(a, b)
+        assert floor.shape == (3,) and np.all(floor > 0)
+        ratios.append(floor.mean() / a.floor.mean())
+    assert 0.7 < np.mean(ratios) < 1.4, ratios
+
+
+@pytest.mark.skipif(not dem_available(), reason="the dem extra is not installed")
+def test_repeat_floor_by_hand_and_its_refusals():
+    from axialmix.dem import TracerSpreading
+
+    times = np.array([0.1, 0.2])
+    base = np.array([[0.5, 0.3, 0.2], [0.4, 0.4, 0.2]])
+
+    def spreading(dem, t=times):
+        return TracerSpreading(times=t, dem=dem, predicted=dem, halves=np.stack([dem, dem]),
+                               error=np.zeros(len(t)), floor=np.ones(len(t)))
+
+    shifted = base + np.array([[0.03, -0.03, 0.0], [0.06, 0.0, -0.06]])
+    np.testing.assert_allclose(repeat_floor(spreading(base), spreading(shifted)),
+                               [0.02 / np.sqrt(2), 0.04 / np.sqrt(2)], rtol=1e-12)
+    np.testing.assert_array_equal(repeat_floor(spreading(base), spreading(base)), [0.0, 0.0])
+    with pytest.raises(ValueError, match="share"):
+        repeat_floor(spreading(base), spreading(base[:, :2]))
+    with pytest.raises(ValueError, match="share"):
+        repeat_floor(spreading(base), spreading(base, times * 2))

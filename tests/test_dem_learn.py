@@ -346,3 +346,31 @@ def test_replicates_without_rates_are_left_out_and_too_many_give_no_interval(mon
     else:
         assert np.isnan(learned.lower).all() and np.isnan(learned.upper).all()
         assert all(np.isnan(interval).all() for interval in learned.transport_interval())
+
+
+def test_markov_test_leaves_out_cells_no_particle_visits():
+    """An extra cell that no sequence enters (a ring inside the shaft) leaves the implied
+    time scales of the visited cells as they are, instead of a disconnected matrix."""
+    network, _, _ = _ring()
+    sequences = _tracked_sequences(network, 3000, seed=2)
+    alone = markov_test(sequences, N_CELLS, DT, (1, 2), ck_steps=(2,))
+    padded = markov_test(sequences, N_CELLS + 1, DT, (1, 2), ck_steps=(2,))
+    np.testing.assert_allclose(padded.timescales, alone.timescales, rtol=1e-12)
+    np.testing.assert_allclose(padded.ck_error, alone.ck_error, rtol=1e-12)
+
+
+def test_a_network_without_bootstrap_has_the_same_rates_and_no_interval():
+    network, _, _ = _ring()
+    sequences = _tracked_sequences(network, 2000, seed=3)
+    for estimator in ("logm", "likelihood"):
+        full = learn_network(sequences, N_CELLS, DT, 1, 100, n_bootstrap=20,
+                             estimator=estimator)
+        bare = learn_network(sequences, N_CELLS, DT, 1, 100, n_bootstrap=0,
+                             estimator=estimator)
+        np.testing.assert_array_equal(bare.rates, full.rates)
+        assert bare.replicates.shape == (0, N_CELLS, N_CELLS) and bare.failed == 0
+        assert np.isnan(bare.lower).all() and np.isnan(bare.upper).all()
+        assert np.isnan(np.concatenate(bare.transport_interval())).all()
+        assert np.isfinite(full.lower).all()
+    with pytest.raises(ValueError, match="n_bootstrap"):
+        learn_network(sequences, N_CELLS, DT, 1, 100, n_bootstrap=-1)

@@ -14,6 +14,7 @@ from ._analysis import (
     dem_transport,
     flux_partition,
     region_counts,
+    repeat_floor,
     tracer_spreading,
     velocity_partition,
 )
@@ -53,6 +54,7 @@ __all__ = [
     "dem_transport",
     "flux_partition",
     "region_counts",
+    "repeat_floor",
     "run_hybrid",
     "tracer_spreading",
     "twin_tracer_counts",

@@ -414,7 +414,8 @@ def learn_network(
     - `frame_interval`: time between frames, s.
     - `lag`: lag in frames; ``tau = lag * frame_interval``.
     - `block_frames`: bootstrap block length in frames (an impeller revolution for DEM).
-    - `n_bootstrap`: bootstrap replicates; `seed` their random seed.
+    - `n_bootstrap`: bootstrap replicates; `seed` their random seed. 0: the rates alone,
+      without intervals (`lower` and `upper` NaN).
     - `names`, `centres`, `period`: cell names (default ``C1``...), axial centres (m) and the
       axial period of a periodic section (m), for :meth:`LearnedNetwork.transport`.
     - `estimator`: ``"logm"``, ``Q = log T / tau`` with negative rates clipped
@@ -437,8 +438,13 @@ def learn_network(
     blocks = block_count_matrices(sequences, n_states, lag, block_frames)
     total = blocks.sum(axis=0)
     rng = np.random.default_rng(seed)
+    if int(n_bootstrap) != n_bootstrap or n_bootstrap < 0:
+        raise ValueError(f"n_bootstrap must be a whole number >= 0, got {n_bootstrap}.")
+    n_bootstrap = int(n_bootstrap)
     draws = rng.integers(0, blocks.shape[0], size=(n_bootstrap, blocks.shape[0]))
-    weights = np.stack([np.bincount(d, minlength=blocks.shape[0]) for d in draws])
+    weights = np.zeros((n_bootstrap, blocks.shape[0]), dtype=np.int64)
+    for row, d in zip(weights, draws, strict=True):
+        row[:] = np.bincount(d, minlength=blocks.shape[0])
     resampled = np.einsum("rb,bij->rij", weights, blocks)
     if estimator == "logm":
         rates, clipped = rates_from_counts(total, tau)
@@ -447,15 +453,17 @@ def learn_network(
                 f"the transition matrix at lag {tau:g} s has no accurate real matrix logarithm "
                 "(no rate matrix gives it at this lag): use a shorter lag or "
                 "estimator='likelihood'.")
-        replicates = rates_from_counts(resampled, tau)[0]
+        replicates = (rates_from_counts(resampled, tau)[0] if n_bootstrap
+                      else np.zeros((0, n_states, n_states)))
     else:
         edges = observed_edges(sequences, n_states)
         rates, clipped = rates_by_likelihood(total, tau, edges), 0.0
-        replicates = rates_by_likelihood(resampled, tau, edges, start=rates)
+        replicates = (rates_by_likelihood(resampled, tau, edges, start=rates) if n_bootstrap
+                      else np.zeros((0, n_states, n_states)))
     usable = np.isfinite(replicates).all(axis=(1, 2))
     failed = int(n_bootstrap - usable.sum())
     replicates = replicates[usable]
-    if failed > FAILED_SHARE * n_bootstrap:
+    if n_bootstrap == 0 or failed > FAILED_SHARE * n_bootstrap:
         lower = upper = np.full(rates.shape, np.nan)
     else:
         lower, upper = np.percentile(replicates, [2.5, 97.5], axis=0)
@@ -506,6 +514,15 @@ def _transition(counts: np.ndarray) -> np.ndarray:
     return np.where(rows > 0, counts / np.where(rows > 0, rows, 1), np.eye(counts.shape[0]))
 
 
+def _largest_connected_set(counts: np.ndarray) -> np.ndarray:
+    """Indices of the largest set of states connected both ways by the counts."""
+    from scipy.sparse.csgraph import connected_components
+
+    _, labels = connected_components(counts > 0, directed=True, connection="strong")
+    largest = np.argmax(np.bincount(labels))
+    return np.flatnonzero(labels == largest)
+
+
 def markov_test(
     sequences: np.ndarray,
     n_states: int,
@@ -526,6 +543,10 @@ def markov_test(
     - `ck_steps`: multiples of the base lag compared.
     - `n_timescales`: how many of the slowest time scales to report.
 
+    The time scales are those of the largest set of cells connected both ways at each lag
+    (cells no sphere visits, such as a ring inside the shaft's radius, have no transition
+    matrix row and are left out).
+
     **Returns:** a :class:`MarkovTest`.
     """
     from deeptime.markov.msm import MarkovStateModel
@@ -533,8 +554,9 @@ def markov_test(
     sequences = np.asarray(sequences)
     scales = []
     for lag in lags:
-        model = MarkovStateModel(_transition(count_matrix(sequences, n_states, lag)),
-                                 lagtime=int(lag))
+        counts = count_matrix(sequences, n_states, lag)
+        keep = _largest_connected_set(counts)
+        model = MarkovStateModel(_transition(counts[np.ix_(keep, keep)]), lagtime=int(lag))
         with warnings.catch_warnings():
             # A chain with drift is not reversible: its eigenvalues come in complex pairs,
             # and the time scales are those of their moduli (what deeptime warns about).
