@@ -374,3 +374,78 @@ def test_a_network_without_bootstrap_has_the_same_rates_and_no_interval():
         assert np.isfinite(full.lower).all()
     with pytest.raises(ValueError, match="n_bootstrap"):
         learn_network(sequences, N_CELLS, DT, 1, 100, n_bootstrap=-1)
+
+
+def _lanes_network(n, dx, lanes, exchange):
+    """A periodic two-lane chain: lane l moves forward at a_l and back at b_l between axial
+    neighbours, and changes lane at `exchange` each way (cell index ``axial * 2 + lane``)."""
+    from axialmix.dem import LearnedNetwork
+
+    size = 2 * n
+    rates = np.zeros((size, size))
+    for i in range(n):
+        for lane, (a, b) in enumerate(lanes):
+            here = 2 * i + lane
+            rates[here, 2 * ((i + 1) % n) + lane] += a
+            rates[here, 2 * ((i - 1) % n) + lane] += b
+            rates[here, 2 * i + 1 - lane] += exchange
+    np.fill_diagonal(rates, -rates.sum(axis=1))
+    centres = np.repeat((np.arange(n) + 0.5) * dx, 2)
+    nan = np.full(rates.shape, np.nan)
+    return LearnedNetwork(
+        names=tuple(f"C{i}" for i in range(size)), rates=rates, lower=nan, upper=nan,
+        replicates=np.zeros((0, size, size)), counts=np.zeros((size, size)), lag_seconds=1.0,
+        lag_frames=1, holdups=np.ones(size), centres=centres,
+        period=n * dx, clipped=0.0, blocks=1, block_seconds=1.0, failed=0)
+
+
+def test_equivalent_adm_of_two_lanes_is_their_taylor_dispersion():
+    """Two lanes of drift v_1, v_2 and dispersion D_1, D_2 exchanging at rate k each way: the
+    long-time ADM is the mean drift and (D_1 + D_2)/2 + (v_1 - v_2)² / (8 k), exactly."""
+    n, dx, k = 10, 0.01, 0.7
+    lanes = [(9.0, 1.0), (2.0, 3.0)]
+    learned = _lanes_network(n, dx, lanes, k)
+    v, d = learned.transport()
+    speeds = [(a - b) * dx for a, b in lanes]
+    dispersions = [(a + b) * dx**2 / 2 for a, b in lanes]
+    assert v == pytest.approx(np.mean(speeds), rel=1e-12)
+    assert d == pytest.approx(np.mean(dispersions) + (speeds[0] - speeds[1]) ** 2 / (8 * k),
+                              rel=1e-10)
+    # Equal lanes: no Taylor term, the chain's own (a + b) dx² / 2.
+    same = _lanes_network(n, dx, [(9.0, 1.0), (9.0, 1.0)], k)
+    v_same, d_same = same.transport()
+    assert v_same == pytest.approx(8.0 * dx, rel=1e-12)
+    assert d_same == pytest.approx(5.0 * dx**2, rel=1e-10)
+
+
+def test_equivalent_adm_matches_the_spread_of_the_unwrapped_network():
+    """An independent check of the long-time formula: the variance growth of a particle on
+    the network unwrapped over many periods (expm of the lifted chain), late in time."""
+    import scipy.linalg
+
+    n, dx, k = 6, 0.01, 0.5
+    lanes = [(6.0, 1.0), (1.5, 2.0)]
+    learned = _lanes_network(n, dx, lanes, k)
+    v, d = learned.transport()
+    copies = 40
+    cells = 2 * n * copies
+    lifted = np.zeros((cells, cells))
+    for i in range(n * copies - 1):
+        for lane, (a, b) in enumerate(lanes):
+            lifted[2 * i + lane, 2 * (i + 1) + lane] = a
+            lifted[2 * (i + 1) + lane, 2 * i + lane] = b
+    for i in range(n * copies):
+        lifted[2 * i, 2 * i + 1] = lifted[2 * i + 1, 2 * i] = k
+    np.fill_diagonal(lifted, -lifted.sum(axis=1))
+    z = np.repeat(np.arange(n * copies) * dx, 2)
+    start = np.zeros(cells)
+    middle = n * copies // 2
+    start[2 * middle:2 * middle + 2] = 0.5  # both lanes (their stationary shares)
+    moments = []
+    for t in (6.0, 8.0):
+        p = start @ scipy.linalg.expm(lifted * t)
+        mean = p @ z
+        moments.append((mean, p @ (z - mean) ** 2))
+    (m1, s1), (m2, s2) = moments
+    assert (m2 - m1) / 2.0 == pytest.approx(v, rel=1e-6)
+    assert (s2 - s1) / (2 * 2.0) == pytest.approx(d, rel=1e-3)

@@ -284,6 +284,27 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
     return out[0] if single else out
 
 
+def _largest_connected_set(counts: np.ndarray) -> np.ndarray:
+    """Indices of the largest set of states connected both ways by the counts."""
+    from scipy.sparse.csgraph import connected_components
+
+    _, labels = connected_components(counts > 0, directed=True, connection="strong")
+    largest = np.argmax(np.bincount(labels))
+    return np.flatnonzero(labels == largest)
+
+
+def _stationary(generator: np.ndarray) -> np.ndarray:
+    """Stationary distribution ``pi`` of an irreducible rate matrix (``pi Q = 0``,
+    ``sum pi = 1``)."""
+    n = generator.shape[0]
+    system = np.vstack([generator.T, np.ones((1, n))])
+    target = np.zeros(n + 1)
+    target[-1] = 1.0
+    pi = np.linalg.lstsq(system, target, rcond=None)[0]
+    pi = np.clip(pi, 0.0, None)
+    return pi / pi.sum()
+
+
 @dataclass(frozen=True, eq=False)
 class LearnedNetwork:
     """A compartment network learned from cell sequences, with bootstrap uncertainty.
@@ -364,19 +385,40 @@ class LearnedNetwork:
     def transport(self, rates: np.ndarray | None = None) -> tuple[float, float]:
         """The network's equivalent ADM: ``(v, D_z)`` in m/s and m²/s.
 
-        With ``dz_ij`` the axial jump from cell i to j (wrapped in a periodic section), the
-        occupancy-weighted mean of ``sum_j Q_ij dz_ij`` is the drift ``v`` and of
-        ``sum_j Q_ij dz_ij² / 2`` the dispersion ``D_z`` (for a chain of neighbours this is
-        ``v = (a - b) dx``, ``D_z = (a + b) dx² / 2``, as
-        :func:`axialmix.network.backflow_chain_transport`).
+        With ``dz_ij`` the axial jump from cell i to j and ``b_i = sum_j Q_ij dz_ij`` the
+        drift out of cell i:
+
+        * **periodic section** (`period` set): the long-time drift and dispersion of a
+          particle following the network, unwrapped along the axis (the central limit of its
+          displacement): ``v = sum_i pi_i b_i`` with ``pi`` the network's stationary
+          distribution, and ``D_z = 1/2 sum_i pi_i sum_j Q_ij (dz_ij + chi_j - chi_i)²``
+          where ``sum_j Q_ij chi_j = v - b_i``. The corrector ``chi`` carries what a
+          cell-to-cell difference of drift adds over time: cells of one axial slice that
+          move at different speeds (radial rings) give Taylor dispersion, two lanes of
+          speeds ``v_1, v_2`` exchanging at rate ``k`` each way add ``(v_1 - v_2)² / (8 k)``.
+          For a chain of neighbours with the same rates everywhere ``chi = 0`` and this is
+          ``v = (a - b) dx``, ``D_z = (a + b) dx² / 2``, as
+          :func:`axialmix.network.backflow_chain_transport`.
+        * **closed vessel**: the occupancy-weighted means of ``b_i`` and of
+          ``sum_j Q_ij dz_ij² / 2`` (the local drift and dispersion; a closed vessel has no
+          long-time drift).
         """
-        rates = self.rates if rates is None else rates
+        rates = self.rates if rates is None else np.asarray(rates, float)
         jumps = self._jumps()
-        weights = self.holdups / self.holdups.sum()
         off = np.where(np.eye(self.n_cells, dtype=bool), 0, rates)
-        v = float(weights @ (off * jumps).sum(axis=1))
-        d = float(weights @ (off * jumps**2).sum(axis=1) / 2)
-        return v, d
+        drift = (off * jumps).sum(axis=1)
+        if self.period is None:
+            weights = self.holdups / self.holdups.sum()
+            return float(weights @ drift), float(weights @ (off * jumps**2).sum(axis=1) / 2)
+        # On the cells connected both ways (a cell never entered has no say).
+        keep = _largest_connected_set(off)
+        off, jumps, drift = off[np.ix_(keep, keep)], jumps[np.ix_(keep, keep)], drift[keep]
+        generator = off - np.diag(off.sum(axis=1))
+        stationary = _stationary(generator)
+        v = float(stationary @ drift)
+        corrector = np.linalg.lstsq(generator, v - drift, rcond=None)[0]
+        moved = jumps + corrector[None, :] - corrector[:, None]
+        return v, float(stationary @ (off * moved**2).sum(axis=1) / 2)
 
     def transport_interval(self) -> tuple[np.ndarray, np.ndarray]:
         """95 % bootstrap intervals of ``v`` (m/s) and ``D_z`` (m²/s): two ``(2,)`` arrays."""
@@ -512,15 +554,6 @@ class MarkovTest:
 def _transition(counts: np.ndarray) -> np.ndarray:
     rows = counts.sum(axis=1, keepdims=True)
     return np.where(rows > 0, counts / np.where(rows > 0, rows, 1), np.eye(counts.shape[0]))
-
-
-def _largest_connected_set(counts: np.ndarray) -> np.ndarray:
-    """Indices of the largest set of states connected both ways by the counts."""
-    from scipy.sparse.csgraph import connected_components
-
-    _, labels = connected_components(counts > 0, directed=True, connection="strong")
-    largest = np.argmax(np.bincount(labels))
-    return np.flatnonzero(labels == largest)
 
 
 def markov_test(
