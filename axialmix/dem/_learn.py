@@ -576,9 +576,9 @@ def markov_test(
     - `ck_steps`: multiples of the base lag compared.
     - `n_timescales`: how many of the slowest time scales to report.
 
-    The time scales are those of the largest set of cells connected both ways at each lag
-    (cells no sphere visits, such as a ring inside the shaft's radius, have no transition
-    matrix row and are left out).
+    The time scales are those of the largest set of cells connected both ways at each lag,
+    the Chapman–Kolmogorov test that of the base lag (cells no sphere visits, such as a ring
+    inside the shaft's radius, have no transition matrix row and are left out).
 
     **Returns:** a :class:`MarkovTest`.
     """
@@ -597,14 +597,16 @@ def markov_test(
             ts = np.asarray(model.timescales(k=n_timescales), float) * frame_interval
         scales.append(ts)
     base = int(base_lag or lags[0])
-    t_base = _transition(count_matrix(sequences, n_states, base))
+    counts = count_matrix(sequences, n_states, base)
+    keep = np.ix_(*(2 * (_largest_connected_set(counts),)))
+    t_base = _transition(counts[keep])
     half = sequences.shape[1] // 2
     errors, noise = [], []
     for k in ck_steps:
-        direct = _transition(count_matrix(sequences, n_states, base * k))
+        direct = _transition(count_matrix(sequences, n_states, base * k)[keep])
         errors.append(np.abs(np.linalg.matrix_power(t_base, k) - direct).max())
-        a = _transition(count_matrix(sequences[:, :half], n_states, base * k))
-        b = _transition(count_matrix(sequences[:, half:], n_states, base * k))
+        a = _transition(count_matrix(sequences[:, :half], n_states, base * k)[keep])
+        b = _transition(count_matrix(sequences[:, half:], n_states, base * k)[keep])
         noise.append(np.abs(a - b).max() / 2)  # each half is sqrt(2) noisier than the whole
     return MarkovTest(
         lags_seconds=np.asarray(lags, float) * frame_interval,
