@@ -19,11 +19,11 @@ axialmix.trajectories; networks learned on the first half of the run for several
 and lags, their equivalent ADM, Markov test, and how well each predicts the spreading of a
 tracer in the second half against the DEM's own noise floor: from two random halves of the
 tracer (their sampling noise alone), and (axialmix.dem.repeat_floor) from the same tracer over
-the run's two halves and, with ``--second``, over an independent run of the same section
-(another seed), floors that hold what the whole bed shares.
+the run's two halves and, with ``--others``, over the second halves of independent runs of the
+same section (other seeds; every pair of runs), floors that hold what the whole bed shares.
 
-    python benchmarks/dem.py --section A/run.npz --second B/run.npz --estimator likelihood \
-        --layouts 24x1,24x2,24x4,48x3 --lags 0.5,1.0 --bootstrap 0
+    python benchmarks/dem.py --section A/run.npz --others B/run.npz,C/run.npz \
+        --estimator likelihood --layouts 24x1,24x2,24x4,48x3 --lags 0.5,1.0 --bootstrap 0
 
 The mixer is the source's geometry (radius 0.1 m, length 0.5 m; see axialmix.dem.BladedMixer)
 with 1,500 + 1,500 spheres of 8.2 mm: the same 5 % solid fill as the source's 5,000 + 5,000
@@ -54,7 +54,7 @@ N_REGIONS = 10
 def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
             delays_s: tuple[float, ...] = (1.0, 2.0, 4.0), estimator: str = "logm",
             layouts: tuple[tuple[int, int], ...] = ((6, 1), (12, 1), (24, 1), (12, 2)),
-            second: str | None = None, bootstrap: int = 200) -> None:
+            others: tuple[str, ...] = (), bootstrap: int = 200) -> None:
     from axialmix.dem import (
         DEMRun,
         cell_length_limit,
@@ -65,11 +65,12 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
     )
 
     run = DEMRun.load(path)
-    other = DEMRun.load(second) if second else None
-    if other is not None and (other.geometry != run.geometry or other.n_frames != run.n_frames
-                              or not np.isclose(other.frame_interval, run.frame_interval)):
-        raise SystemExit(f"{second}: not a run of the same section, frames and interval as "
-                         f"{path}")
+    repeats = [DEMRun.load(other) for other in others]
+    for other, name in zip(repeats, others, strict=True):
+        if (other.geometry != run.geometry or other.n_frames != run.n_frames
+                or not np.isclose(other.frame_interval, run.frame_interval)):
+            raise SystemExit(f"{name}: not a run of the same section, frames and interval as "
+                             f"{path}")
     g = run.geometry
     dt = run.frame_interval
     print(f"paddle section: {run.n_particles} spheres, {run.times[-1]:.2f} s recorded every "
@@ -90,16 +91,14 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
           "  CK err/noise  tracer err/floor: one start, phase-averaged (err/floor), own chain, "
           "DEM itself | err over the floor of two windows, of two runs")
     print(f"networks estimated by {estimator}"
-          + (f"; second run {second}" if other is not None else ""))
-    z_other = other.positions[:, :, 2] if other is not None else None
-    r_other = (np.hypot(other.positions[:, :, 0], other.positions[:, :, 1])
-               if other is not None else None)
+          + (f"; independent runs of the section: {', '.join(others)}" if others else ""))
     for n_cells, n_radial in layouts:
         cells = axial_cells(z, g.length, n_cells, periodic=True, radius=r,
                             vessel_radius=g.radius, n_radial=n_radial)
-        cells_other = (axial_cells(z_other, g.length, n_cells, periodic=True, radius=r_other,
-                                   vessel_radius=g.radius, n_radial=n_radial)
-                       if other is not None else None)
+        cells_others = [axial_cells(o.positions[:, :, 2], g.length, n_cells, periodic=True,
+                                    radius=np.hypot(o.positions[:, :, 0], o.positions[:, :, 1]),
+                                    vessel_radius=g.radius, n_radial=n_radial)
+                        for o in repeats]
         n = n_cells * n_radial
         centres = np.repeat((np.arange(n_cells) + 0.5) * g.length / n_cells, n_radial)
         for lag_s in lags:
@@ -135,12 +134,12 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
             window = float(np.abs(early.dem - spread.dem).mean() / spread.floor.mean())
             # The floors of two equivalent measurements (axialmix.dem.repeat_floor): the same
             # tracer over the first and the second half of this run, and over the second half
-            # of an independent run (another seed), when one is given.
+            # of this run and of independent runs (other seeds), every pair, when given.
             by_windows = spread.error.mean() / repeat_floor(early, spread).mean()
-            if cells_other is not None:
-                twin = tracer_spreading(cells_other, learned, dt, starts, delays,
-                                        n_radial=n_radial)
-                by_runs = f"{spread.error.mean() / repeat_floor(spread, twin).mean():6.2f}"
+            if cells_others:
+                twins = [tracer_spreading(c, learned, dt, starts, delays, n_radial=n_radial)
+                         for c in cells_others]
+                by_runs = f"{spread.error.mean() / repeat_floor(spread, *twins).mean():6.2f}"
             else:
                 by_runs = "     -"
             print(f"{label:12s} {lag * dt:6.2f}  {v * 1e3:7.2f} [{vlo * 1e3:6.2f},{vhi * 1e3:6.2f}]"
@@ -156,8 +155,8 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
           "DEM itself: the tracer over the first half against the tracer over the second "
           "(err/floor), the run's own window-to-window difference; the last two: the "
           "network's error over axialmix.dem.repeat_floor of the two windows, and of this "
-          "run and the second run (--second), the floors that hold what the whole bed "
-          "shares")
+          "run and the independent runs (--others, every pair), the floors that hold what "
+          "the whole bed shares")
 
 
 def own_chain_error(cells, n, n_radial, lag, starts, delays, spread) -> float:
@@ -191,9 +190,9 @@ def main() -> None:
                         help="with --section: tracer delays compared, s (comma-separated)")
     parser.add_argument("--estimator", default="logm", choices=("logm", "likelihood"),
                         help="with --section: how rates are estimated from the counts")
-    parser.add_argument("--second", default=None, metavar="RUN",
-                        help="an independent run of the same section (another seed): the "
-                             "noise floor of two runs")
+    parser.add_argument("--others", default="", metavar="RUN[,RUN...]",
+                        help="independent runs of the same section (other seeds): the noise "
+                             "floor of independent runs")
     parser.add_argument("--bootstrap", type=int, default=200,
                         help="bootstrap replicates of each network (0: no intervals)")
     parser.add_argument("--layouts", default="6x1,12x1,24x1,12x2",
@@ -203,7 +202,7 @@ def main() -> None:
         section(args.section, tuple(float(x) for x in args.lags.split(",")),
                 tuple(float(x) for x in args.delays.split(",")), args.estimator,
                 tuple(tuple(int(v) for v in x.split("x")) for x in args.layouts.split(",")),
-                args.second, args.bootstrap)
+                tuple(x for x in args.others.split(",") if x), args.bootstrap)
         return
     if args.quick:
         mixer = BladedMixer(particles=(300, 300), diameter=0.0082)

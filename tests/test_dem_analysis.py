@@ -215,6 +215,14 @@ def test_repeat_floor_by_hand_and_its_refusals():
     np.testing.assert_allclose(repeat_floor(spreading(base), spreading(shifted)),
                                [0.02 / np.sqrt(2), 0.04 / np.sqrt(2)], rtol=1e-12)
     np.testing.assert_array_equal(repeat_floor(spreading(base), spreading(base)), [0.0, 0.0])
+    # Several measurements: the mean over their pairs.
+    third = base - np.array([[0.03, -0.03, 0.0], [0.0, 0.0, 0.0]])
+    pairs = [[0.02, 0.04], [0.02, 0.0], [0.04, 0.04]]
+    np.testing.assert_allclose(
+        repeat_floor(spreading(base), spreading(shifted), spreading(third)),
+        np.mean(pairs, axis=0) / np.sqrt(2), rtol=1e-12)
+    with pytest.raises(ValueError, match="two"):
+        repeat_floor(spreading(base))
     with pytest.raises(ValueError, match="share"):
         repeat_floor(spreading(base), spreading(base[:, :2]))
     with pytest.raises(ValueError, match="share"):

@@ -190,25 +190,32 @@ def tracer_spreading(cells: np.ndarray, learned: LearnedNetwork, frame_interval:
     )
 
 
-def repeat_floor(first: TracerSpreading, second: TracerSpreading) -> np.ndarray:
-    """The DEM's own noise floor from two equivalent measurements of one tracer's spreading.
+def repeat_floor(*spreadings: TracerSpreading) -> np.ndarray:
+    """The DEM's own noise floor from equivalent measurements of one tracer's spreading.
 
-    Two independent DEM runs of the same system (another seed), or one run's tracer released
+    Independent DEM runs of the same system (other seeds), or one run's tracer released
     over two windows, measure the same expected fractions with independent errors; the mean
     of ``|dem_1 - dem_2|`` over cells is then ``sqrt(2)`` times the mean error of an exact
-    prediction of either, so this floor is that mean over ``sqrt(2)``. Unlike
-    :attr:`TracerSpreading.floor` (two halves of the spheres of one window: their sampling
-    noise alone), it holds what the whole bed shares: its slow fluctuations and, between
-    runs, the run-to-run differences of the packing.
+    prediction of either, so this floor is that mean over ``sqrt(2)``, averaged over every
+    pair of the measurements given. Unlike :attr:`TracerSpreading.floor` (two halves of the
+    spheres of one window: their sampling noise alone), it holds what the whole bed shares:
+    its slow fluctuations (a drift that wanders by a tenth over seconds) and, between runs,
+    the run-to-run differences of the packing.
 
-    **Arguments:** `first`, `second`: :class:`TracerSpreading` of the same cells, starts and
-    delays (their `dem` fractions are compared; their predictions are not used).
+    **Arguments:** two or more :class:`TracerSpreading` of the same cells, starts and delays
+    (their `dem` fractions are compared; their predictions are not used).
 
     **Returns:** ``(delays,)`` floor in tracer fraction, comparable with `error`.
     """
-    if first.dem.shape != second.dem.shape or not np.array_equal(first.times, second.times):
-        raise ValueError("the two spreadings must share their cells and delays.")
-    return np.abs(first.dem - second.dem).mean(axis=1) / np.sqrt(2.0)
+    if len(spreadings) < 2:
+        raise ValueError("a repeat floor needs at least two measurements.")
+    first = spreadings[0]
+    for other in spreadings[1:]:
+        if other.dem.shape != first.dem.shape or not np.array_equal(other.times, first.times):
+            raise ValueError("the spreadings must share their cells and delays.")
+    pairs = [np.abs(a.dem - b.dem).mean(axis=1)
+             for k, a in enumerate(spreadings) for b in spreadings[k + 1:]]
+    return np.mean(pairs, axis=0) / np.sqrt(2.0)
 
 
 def region_counts(run, n_regions: int) -> np.ndarray:
