@@ -89,7 +89,7 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
     r = np.hypot(run.positions[:, :, 0], run.positions[:, :, 1])
     print("\ncells        lag (s)  v net (mm/s) [95 %]        D_z net (mm²/s) [95 %]   clipped"
           "  CK err/noise  tracer err/floor: one start, phase-averaged (err/floor), own chain, "
-          "DEM itself | err over the floor of two windows, of two runs")
+          "DEM itself | err over the floor of two windows, of independent runs")
     print(f"networks estimated by {estimator}"
           + (f"; independent runs of the section: {', '.join(others)}" if others else ""))
     for n_cells, n_radial in layouts:
