@@ -321,14 +321,12 @@ class StudyRun:
                 stem = f"{stem}-{position + 1}"
                 self._renamed[position] = stem
             taken.add(stem)
-        del taken
         self._columns: tuple[list[str], list[str], list[str]] | None = None
         #: Finished curves, by study position: where each one's record lies in the journal and
         #: its summary-table line in :attr:`_rows` (offset and size in bytes, -1 while not
         #: finished). Memory holds these 32 bytes a curve, whatever the study's size; the
         #: records and lines themselves stay on disk.
         self._finished = np.full((len(study), 4), -1, dtype=np.int64)
-        self._count = 0
         #: The summary-table lines of the finished curves, as they finished (a temporary
         #: file, gone when the run is; a resumed run rebuilds it from the journal).
         self._rows = tempfile.TemporaryFile(dir=self.folder, prefix=".summary-rows-")
@@ -346,12 +344,12 @@ class StudyRun:
         self._table_seconds = 0.0
         self._resume()
         #: Curves the journal held when this run began.
-        self.resumed = self._count
+        self.resumed = self.done
 
     @property
     def done(self) -> int:
         """The number of finished (fitted and journaled) curves."""
-        return self._count
+        return int(np.count_nonzero(self._finished[:, 0] >= 0))
 
     def stem(self, position: int) -> str:
         """The file name stem in ``curves/`` of the curve at study `position`."""
@@ -423,7 +421,6 @@ class StudyRun:
         start = self._rows.tell()
         self._rows.write(line)
         self._finished[position] = (offset, size, start, len(line))
-        self._count += 1
 
     def _append(self, indices: Sequence[int], records: Sequence[Mapping[str, Any]]) -> None:
         rows = [{"curve": self.study.ids[i], "levels": list(self.study.levels[i]),
@@ -511,8 +508,8 @@ class StudyRun:
             head = {"study": self.study.source, "model": self.plan.model,
                     "factors": list(self.study.factors),
                     "n_curves": len(self.study) + len(self.study.refused),
-                    "n_fitted": self._count, "n_refused": len(self.refused),
-                    "complete": self._count + len(self.refused)
+                    "n_fitted": self.done, "n_refused": len(self.refused),
+                    "complete": self.done + len(self.refused)
                     == len(self.study) + len(self.study.refused),
                     "refused": [{"curve": name, "reason": reason}
                                 for name, reason in self.refused.items()],
