@@ -473,13 +473,52 @@ def test_closed_closed_curves_of_many_points_are_evaluated_in_blocks_with_the_sa
     def sum_of_squares(curves):
         return lambda p: jnp.sum(curves(p) ** 2)
 
-    # Equal to round-off: XLA may order the 33-term quadrature sums differently in arrays of
-    # other shapes (vector widths), a few units in the last place.
-    same = {"rtol": 1e-12, "atol": 1e-18}
+    # Equal to round-off: XLA may order the 25-term quadrature sums differently, and evaluate
+    # exp in its vectorised or its scalar form, in arrays of other shapes (vector widths): a
+    # few units in the last place of each curve's (or Jacobian column's) largest value.
+    # Measured: 1.5e-14 of the column's largest value at most. (Relative to each entry the same
+    # round-off is unbounded where a derivative crosses zero.)
     p = jnp.array([20.0, 7.0])
     for transform in (jax.jit, lambda f: jax.jit(jax.jacfwd(f)),
                       lambda f: jax.jit(jax.grad(sum_of_squares(f)))):
-        np.testing.assert_allclose(transform(blocked)(p), transform(at_once)(p), **same)
+        got, want = np.asarray(transform(blocked)(p)), np.asarray(transform(at_once)(p))
+        scale = np.max(np.abs(want), axis=-2, keepdims=True) if want.ndim == 3 else (
+            np.max(np.abs(want), axis=-1, keepdims=True))
+        assert np.all(np.abs(got - want) <= 1e-13 * scale), np.max(np.abs(got - want) / scale)
+
+
+@pytest.mark.parametrize("peclet", [1e-3, 0.1, 7.0, 137.0, 1e5])
+def test_line_factors_equal_the_complex_exponentials_they_replace(peclet):
+    # e^phi (one real exponential times a fixed array), e^{-q Pe} - 1 (expm1 and half-angle
+    # powers) and e^{-q Pe} (powers of one rotation) against the complex exponentials on the
+    # same nodes, each to its own relative precision (also where |q Pe| is small, Pe 1e-3, and
+    # where e^{-q Pe} is tiny, Pe 1e5); and their derivatives against those of the exponentials.
+    from axialmix.analytic import _contour
+
+    theta = jnp.geomspace(1e-3, 20.0, 101)
+    pe = jnp.full(theta.shape, peclet)
+    nodes = _contour.DEFAULT_NODES
+    growth, change, decay = _contour._factors(theta, pe, nodes)
+    theta_n, pe_n, q, *_ = _contour._geometry(theta, pe, nodes)
+    phi = _contour._phi(theta_n, pe_n, q)
+    for got, want in ((growth, jnp.exp(phi)), (change, jnp.expm1(-q * pe_n)),
+                      (decay, jnp.exp(-q * pe_n))):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-11, atol=1e-300)
+
+    def direct(theta, pe):
+        # (The tangents only: JAX differentiates expm1(x) as (expm1(x) + 1) dx, which loses
+        # the digits of a tiny e^x; exp(x) - 1 has the tangent e^x dx itself.)
+        theta_n, pe_n, q, *_ = _contour._geometry(theta, pe, nodes)
+        return (jnp.exp(_contour._phi(theta_n, pe_n, q)), jnp.exp(-q * pe_n) - 1.0,
+                jnp.exp(-q * pe_n))
+
+    point = (jnp.asarray([0.7]), jnp.asarray([peclet]))
+    tangent = (jnp.asarray([0.3]), jnp.asarray([0.2 * peclet]))
+    _, fast = jax.jvp(lambda a, b: _contour._factors(a, b, nodes), point, tangent)
+    _, slow = jax.jvp(direct, point, tangent)
+    for got, want in zip(fast, slow, strict=True):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-9,
+                                   atol=1e-12 * float(np.max(np.abs(np.asarray(want)))))
 
 
 def test_closed_closed_gradient_memory_grows_only_with_the_results():

@@ -25,10 +25,12 @@ and 16 nodes 3e-11.
 
 from __future__ import annotations
 
+import math
 from functools import partial
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.special import erfc
 
 OFFSET_EXPONENT = 2.3
@@ -58,10 +60,11 @@ def _earliest_nonzero_theta(peclet: jax.Array) -> jax.Array:
     return 2.0 * peclet / ((2.0 * peclet + k) + jnp.sqrt(k * (4.0 * peclet + k)))
 
 
-def _line(theta: jax.Array, peclet: jax.Array, nodes: int):
-    """The quadrature line of each theta (a trailing axis of ``nodes + 1`` points):
-    ``(theta, Pe, q, phi, weights)``, theta and Pe with that axis, and the trapezoidal
-    weights (the step over pi included) of the integral of the real part."""
+def _geometry(theta: jax.Array, peclet: jax.Array, nodes: int):
+    """The quadrature line of each theta (a trailing axis of ``nodes + 1`` points), held fixed
+    under differentiation: ``(theta, Pe, q, weights, offset, step)``, theta and Pe with that
+    axis, and the trapezoidal weights (the step over pi included) of the integral of the real
+    part."""
     theta = theta[..., None]
     peclet = jnp.asarray(peclet)[..., None]
     pe_theta = peclet * theta
@@ -70,22 +73,81 @@ def _line(theta: jax.Array, peclet: jax.Array, nodes: int):
     offset = jax.lax.stop_gradient(jnp.sqrt(4.0 * OFFSET_EXPONENT / pe_theta))
     height = jax.lax.stop_gradient(jnp.sqrt(4.0 * TRUNCATION_EXPONENT / pe_theta))
     step = height / nodes
-    saddle = 1.0 / theta
-    line = jax.lax.stop_gradient(saddle + offset)
-    y = jnp.arange(nodes + 1) * step
-    from_saddle = (line - saddle) + 1j * y
-    q = line + 1j * y
-    phi = 0.25 * pe_theta * from_saddle**2 - peclet * (1.0 - theta) ** 2 / (4.0 * theta)
+    line = jax.lax.stop_gradient(1.0 / theta + offset)
+    q = line + 1j * jnp.arange(nodes + 1) * step
     weights = jnp.ones(nodes + 1).at[0].set(0.5) * step / jnp.pi
-    return theta, peclet, q, phi, weights
+    return theta, peclet, q, weights, offset, step
+
+
+def _phi(theta: jax.Array, peclet: jax.Array, q: jax.Array) -> jax.Array:
+    """The exponent ``phi = (Pe theta / 4) (q - 1/theta)² - Pe (1 - theta)² / (4 theta)``
+    of the integrand at fixed q (linear in Pe; its theta derivative is ``s = Pe (q² - 1) / 4``)."""
+    return 0.25 * peclet * theta * (q - 1.0 / theta) ** 2 - peclet * (1.0 - theta) ** 2 / (
+        4.0 * theta)
+
+
+def _powers(angle: jax.Array, count: int) -> jax.Array:
+    """``exp(-i k angle)`` for ``k = 0 … count - 1`` on a trailing axis, by products of the
+    binary powers of ``exp(-i angle)`` (no transcendental function per node)."""
+    bits = max(1, (count - 1).bit_length())
+    k = np.arange(count)
+    base = jnp.exp(-1j * angle)
+    out = jnp.ones(angle.shape + (count,), complex)
+    for b in range(bits):
+        out = out * jnp.where(jnp.asarray((k >> b) & 1, bool), base[..., None], 1.0)
+        base = base * base
+    return out
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(2,))
+def _factors(theta: jax.Array, peclet: jax.Array, nodes: int):
+    """``(e^phi, e^{-q Pe} - 1, e^{-q Pe})`` on the line of every theta (trailing axis of
+    nodes).
+
+    On the line, ``phi_k = L - T k²/n² + 2 i sqrt(L T) k/n - Pe (1 - theta)² / (4 theta)``
+    (L, T the offset and truncation exponents, n the nodes): ``e^phi`` is one real
+    exponential a point times a fixed complex array. ``e^{-q Pe} = e^{-Pe Re q} w^k`` with
+    ``w = e^{-i Pe dy}``, whose powers are products; ``e^{-q Pe} - 1`` is formed from
+    ``expm1`` and the half-angle powers so that it keeps its digits where ``|q Pe|`` is small.
+    The same numbers as the complex exponentials to round-off (E and its two slopes on 40
+    points: 46 µs against 90 µs with the exponentials, measured on one CPU core); the
+    derivatives (a custom JVP, at fixed q) are those of the exponentials, to every order.
+    """
+    theta_n, peclet_n, q, _, _, step = _geometry(theta, peclet, nodes)
+    k = np.arange(nodes + 1)
+    fixed = np.exp(-TRUNCATION_EXPONENT * (k / nodes) ** 2
+                   + 2j * math.sqrt(OFFSET_EXPONENT * TRUNCATION_EXPONENT) * k / nodes)
+    level = OFFSET_EXPONENT - peclet_n * (1.0 - theta_n) ** 2 / (4.0 * theta_n)
+    growth = jnp.exp(level) * fixed
+    half = _powers(0.5 * peclet * step[..., 0], nodes + 1)
+    sine, cosine = -half.imag, half.real
+    rotated_change = -2.0 * sine**2 - 2j * sine * cosine  # e^{-i Pe y} - 1
+    decay_change = jnp.expm1(-peclet_n * q.real)  # e^{-Pe Re q} - 1 (real)
+    change = decay_change * (1.0 + rotated_change) + rotated_change
+    # e^{-q Pe} itself, to its own relative precision where it is tiny (large Pe).
+    decay = jnp.exp(-peclet_n * q.real) * half * half
+    return growth, change, decay
+
+
+@_factors.defjvp
+def _factors_jvp(nodes, primals, tangents):
+    theta, peclet = primals
+    theta_dot, peclet_dot = tangents
+    growth, change, decay = _factors(theta, peclet, nodes)
+    theta_n, peclet_n, q, *_ = _geometry(theta, peclet, nodes)
+    phi = _phi(theta_n, peclet_n, q)
+    slope = 0.25 * peclet_n * (q * q - 1.0)
+    growth_dot = growth * (slope * theta_dot[..., None] + phi / peclet_n * peclet_dot[..., None])
+    decay_dot = -q * decay * peclet_dot[..., None]
+    return (growth, change, decay), (growth_dot, decay_dot, decay_dot)
 
 
 def _line_integrals(theta: jax.Array, peclet: jax.Array, nodes: int):
     """Return E(theta) and F(theta) for theta above the underflow limit (elementwise)."""
-    theta, peclet, q, phi, weights = _line(theta, peclet, nodes)
-    growth = jnp.exp(phi)
+    growth, change, _ = _factors(theta, peclet, nodes)
+    theta, peclet, q, weights, _, _ = _geometry(theta, peclet, nodes)
     # Overflow-safe denominator: (1+q)² - (1-q)² e^{-q Pe} = q (4 + Pe (1-q)² exprel(-q Pe)).
-    relative_growth = exprel(-q * peclet)
+    relative_growth = change / (-q * peclet)
     denominator = 4.0 + peclet * (1.0 - q) ** 2 * relative_growth
     exit_age_integrand = growth * 2.0 * peclet * q / denominator
     # F: the pole of G/s at q = 1 is removed by subtracting e^phi / (q - 1), whose line integral
@@ -112,14 +174,17 @@ def _exit_age_slopes(theta: jax.Array, peclet: jax.Array, nodes: int):
     derivatives are two more sums over the same nodes: no tangent is carried through the
     complex arithmetic.
     """
-    _, peclet, q, phi, weights = _line(theta, peclet, nodes)
-    # Re(q Pe) > 0 on the line, so e^{-q Pe} - 1 never vanishes and needs no guard.
-    change = jnp.expm1(-q * peclet)
+    growth, change, decay = _factors(theta, peclet, nodes)
+    theta, peclet, q, weights, _, _ = _geometry(theta, peclet, nodes)
+    phi = _phi(theta, peclet, q)
     squared = (1.0 - q) ** 2
-    reciprocal = 1.0 / (4.0 - squared * change / q)
-    integrand = jnp.exp(phi) * (2.0 * peclet) * q * reciprocal
+    # 1 / (4 - (1 - q)² change / q) = q / d with d = 4 q - (1 - q)² change, as q conj(d) / |d|²
+    # (one real division; |d| stays far from overflow on every line).
+    denominator = 4.0 * q - squared * change
+    reciprocal = q * jnp.conj(denominator) / (denominator.real**2 + denominator.imag**2)
+    integrand = growth * (2.0 * peclet) * q * reciprocal
     by_theta = integrand * (0.25 * peclet * (q * q - 1.0))
-    by_peclet = integrand * ((1.0 + phi) / peclet - squared * (1.0 + change) * reciprocal)
+    by_peclet = integrand * ((1.0 + phi) / peclet - squared * decay * reciprocal)
     return tuple(jnp.sum(weights * part.real, axis=-1)
                  for part in (integrand, by_theta, by_peclet))
 
