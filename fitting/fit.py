@@ -134,12 +134,15 @@ def with_error_model(settings: FitSettings,
         counting_errors=errors if isinstance(errors, CountingErrors) else None)
 
 
-def merge_parameters(model: Model, params, curve: Curve | None) -> Parameters:
+def merge_parameters(model: Model, params, curve: Curve | None,
+                     defaults: Parameters | None = None) -> Parameters:
     """Model defaults (moment estimates as start values when a curve is given), then the user's.
 
     A number replaces only the start value; a :class:`Parameter` replaces the whole setting.
+    `defaults`: ``model.parameters(curve)`` when the caller already has it (it is not changed).
     """
-    merged = model.parameters(curve)
+    merged = (model.parameters(curve) if defaults is None
+              else Parameters(dict(defaults.items())))
     if params is None:
         return merged
     for name, setting in params.items():
@@ -197,7 +200,9 @@ def prepare(model, curve: Curve, params, weights, n_starts: int | None,
     **Returns:** a :class:`Prepared`; a one-line ``ValueError`` for bad data or settings.
     """
     model = get_model(model)
-    merged = merge_parameters(model, params, curve)
+    # The model's defaults with the moment estimates, worked out once for both uses below.
+    guess = model.parameters(curve) if model.initial_guess is not None else None
+    merged = merge_parameters(model, params, curve, guess)
     layout = make_layout(model.name, model.parameter_names, merged)
     weights = np.ones(len(curve)) if weights is None else np.asarray(weights, dtype=float)
     check_data(curve, weights)
@@ -209,8 +214,7 @@ def prepare(model, curve: Curve, params, weights, n_starts: int | None,
     base = np.array([merged[n].value for n in layout.names])
     start = base[list(layout.free_index)]
     anchor = None
-    if model.initial_guess is not None and (n_starts is None or n_starts > 1):
-        guess = model.parameters(curve)
+    if guess is not None and (n_starts is None or n_starts > 1):
         anchor = np.array([clip_into_bounds(guess[n].value, merged[n]) if n in guess
                            else merged[n].value for n in layout.free])
     if n_starts is None:
