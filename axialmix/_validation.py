@@ -15,6 +15,7 @@ import jax
 import numpy as np
 
 __all__ = [
+    "array_namespace",
     "concrete_value",
     "require_finite",
     "require_increasing_times",
@@ -27,6 +28,18 @@ _TRACER_ERRORS = (
     jax.errors.TracerIntegerConversionError,
     jax.errors.TracerBoolConversionError,
 )
+
+
+def array_namespace(*values: Any):
+    """``numpy`` when every value is a Python number or NumPy array, else ``jax.numpy``.
+
+    Closed-form quantities evaluated on plain numbers (a fit's record, once per curve) then
+    cost NumPy operations instead of JAX dispatches, and stay JAX arrays inside a trace or
+    when given JAX arrays.
+    """
+    import jax.numpy as jnp
+
+    return jnp if any(isinstance(v, jax.Array) for v in values) else np
 
 
 def concrete_value(value: Any) -> np.ndarray | None:

@@ -535,3 +535,23 @@ def test_closed_closed_gradient_memory_grows_only_with_the_results():
     small, large = 64 * 4096, 128 * 4096  # both above AT_ONCE
     per_point = (scratch(large) - scratch(small)) / (large - small)
     assert per_point < 100, f"{per_point:.0f} bytes of scratch memory per point"
+
+
+def test_closed_form_quantities_of_plain_numbers_are_numpy_and_equal_the_jax_ones():
+    # A record evaluates the means and (v, D_z) on plain numbers once per curve: NumPy there
+    # (no JAX dispatch), JAX arrays given JAX arrays and inside a trace; the same numbers.
+    cases = [(analytic.mean_closed, (12.0, 7.0)), (analytic.mean_open, (12.0, 7.0)),
+             (analytic.transport_from_dimensionless, (12.0, 7.0, 0.5))]
+    for function, arguments in cases:
+        plain = function(*arguments)
+        on_jax = function(*(jnp.asarray(a) for a in arguments))
+        traced = jax.jit(function)(*arguments)
+        for got in jax.tree.leaves(plain):
+            assert isinstance(got, np.ndarray | np.generic) and not isinstance(got, jax.Array)
+        for got in jax.tree.leaves((on_jax, traced)):
+            assert isinstance(got, jax.Array)
+        for a, b, c in zip(jax.tree.leaves(plain), jax.tree.leaves(on_jax),
+                           jax.tree.leaves(traced), strict=True):
+            assert float(a) == float(b) == float(c)
+    with pytest.raises(ValueError, match="tau must be positive"):
+        analytic.mean_open(-1.0, 7.0)

@@ -10,9 +10,15 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.typing import ArrayLike
 
-from axialmix._validation import require_finite, require_increasing_times, require_positive
+from axialmix._validation import (
+    array_namespace,
+    require_finite,
+    require_increasing_times,
+    require_positive,
+)
 from axialmix.analytic._contour import (
     DEFAULT_NODES,
     closed_closed_curves,
@@ -153,7 +159,7 @@ def _factorial(n: int) -> float:
     return result
 
 
-def mean_closed(tau: ArrayLike, peclet: ArrayLike) -> jax.Array:
+def mean_closed(tau: ArrayLike, peclet: ArrayLike) -> jax.Array | np.ndarray:
     """Return the mean residence time of the closed–closed model, which equals ``tau``.
 
     **Arguments:**
@@ -163,11 +169,13 @@ def mean_closed(tau: ArrayLike, peclet: ArrayLike) -> jax.Array:
 
     **Returns:**
 
-    The mean residence time in the unit of `tau`.
+    The mean residence time in the unit of `tau`: NumPy (array or scalar) when both
+    arguments are Python numbers or NumPy arrays (no JAX dispatch), a JAX array otherwise.
     """
     require_positive("tau", tau)
     require_positive("peclet", peclet)
-    tau, _ = jnp.broadcast_arrays(jnp.asarray(tau, float), jnp.asarray(peclet, float))
+    xp = array_namespace(tau, peclet)
+    tau, _ = xp.broadcast_arrays(xp.asarray(tau, float), xp.asarray(peclet, float))
     return tau
 
 

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike
 
-from axialmix._validation import concrete_value, require_positive
+from axialmix._validation import array_namespace, concrete_value, require_positive
 from axialmix.analytic.closed import variance_ratio_closed
 
 __all__ = [
@@ -224,7 +224,7 @@ def tau_from_physical(velocity: ArrayLike, length: ArrayLike) -> jax.Array:
 
 def transport_from_dimensionless(
     tau: ArrayLike, peclet: ArrayLike, length: ArrayLike
-) -> tuple[jax.Array, jax.Array]:
+) -> tuple[jax.Array, jax.Array] | tuple[np.ndarray, np.ndarray]:
     """Return the velocity and axial dispersion ``(v, D_z)`` behind ``tau`` and ``Pe``.
 
     The inverse of :func:`tau_from_physical` and :func:`peclet_from_physical`:
@@ -239,11 +239,14 @@ def transport_from_dimensionless(
 
     **Returns:**
 
-    ``(velocity, dispersion)`` in length unit / time unit and length unit² / time unit.
+    ``(velocity, dispersion)`` in length unit / time unit and length unit² / time unit:
+    NumPy (arrays or scalars) when every argument is a Python number or NumPy array (no JAX
+    dispatch), JAX arrays otherwise.
     """
     require_positive("tau", tau)
     require_positive("peclet", peclet)
     require_positive("length", length)
-    tau, length = jnp.asarray(tau, float), jnp.asarray(length, float)
+    xp = array_namespace(tau, peclet, length)
+    tau, length = xp.asarray(tau, float), xp.asarray(length, float)
     velocity = length / tau
-    return velocity, velocity * length / jnp.asarray(peclet, float)
+    return velocity, velocity * length / xp.asarray(peclet, float)

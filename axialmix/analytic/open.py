@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.special import erfc, erfcx
 from jax.typing import ArrayLike
 
-from axialmix._validation import require_increasing_times, require_positive
+from axialmix._validation import array_namespace, require_increasing_times, require_positive
 
 __all__ = ["exit_age_open", "mean_open", "step_response_open", "variance_open"]
 
@@ -77,7 +78,7 @@ def step_response_open(t: ArrayLike, tau: ArrayLike, peclet: ArrayLike) -> jax.A
     return jnp.where(positive, cumulative, 0.0)
 
 
-def mean_open(tau: ArrayLike, peclet: ArrayLike) -> jax.Array:
+def mean_open(tau: ArrayLike, peclet: ArrayLike) -> jax.Array | np.ndarray:
     """Return the open–open mean residence time ``(1 + 2/Pe) tau``.
 
     **Arguments:**
@@ -87,11 +88,13 @@ def mean_open(tau: ArrayLike, peclet: ArrayLike) -> jax.Array:
 
     **Returns:**
 
-    The mean residence time in the unit of `tau`.
+    The mean residence time in the unit of `tau`: NumPy (array or scalar) when both
+    arguments are Python numbers or NumPy arrays (no JAX dispatch), a JAX array otherwise.
     """
     require_positive("tau", tau)
     require_positive("peclet", peclet)
-    return jnp.asarray(tau, float) * (1.0 + 2.0 / jnp.asarray(peclet, float))
+    xp = array_namespace(tau, peclet)
+    return xp.asarray(tau, float) * (1.0 + 2.0 / xp.asarray(peclet, float))
 
 
 def variance_open(tau: ArrayLike, peclet: ArrayLike) -> jax.Array:

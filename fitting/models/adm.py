@@ -13,7 +13,6 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -88,22 +87,16 @@ def adm_transport(values: Mapping[str, float], length: float | None, time_unit: 
             "velocity_m_per_s": _finite(velocity), "dispersion_m2_per_s": _finite(dispersion)}
 
 
-#: The means of the closed and open ADM compiled (a record's quantities evaluate them seven
-#: times per fit; operation by operation that was 14 ms).
-_MEAN_CLOSED = jax.jit(mean_closed)
-_MEAN_OPEN = jax.jit(mean_open)
-
-
 def _closed_adm_transport(values: Mapping[str, float], length: float | None,
                           time_unit: str) -> dict[str, Any]:
     """The closed–closed ADM's tau (= L/v = the mean), Pe, v and D_z (MODELS.md section 2)."""
-    return adm_transport(values, length, time_unit, _MEAN_CLOSED)
+    return adm_transport(values, length, time_unit, mean_closed)
 
 
 def _open_adm_transport(values: Mapping[str, float], length: float | None,
                         time_unit: str) -> dict[str, Any]:
     """The open–open ADM's tau = L/v, its mean residence time (1 + 2/Pe) tau, Pe, v, D_z."""
-    return adm_transport(values, length, time_unit, _MEAN_OPEN)
+    return adm_transport(values, length, time_unit, mean_open)
 
 
 def _adm_closed_exact(t, p):
