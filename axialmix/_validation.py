@@ -9,6 +9,7 @@ failure is one ``ValueError`` sentence that names the argument.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import jax
@@ -21,6 +22,9 @@ __all__ = [
     "require_increasing_times",
     "require_positive",
 ]
+
+#: Python numbers (not bool, which the array path refuses as not numeric).
+_PLAIN_NUMBERS = (float, int)
 
 _TRACER_ERRORS = (
     jax.errors.TracerArrayConversionError,
@@ -69,6 +73,12 @@ def require_finite(name: str, value: Any) -> None:
     - `name`: the argument name used in the message.
     - `value`: the argument.
     """
+    if type(value) in _PLAIN_NUMBERS:  # a Python number: the same checks without an array
+        if math.isnan(value):
+            raise ValueError(f"{name} must not be NaN")
+        if math.isinf(value):
+            raise ValueError(f"{name} must be finite, got an infinity")
+        return
     array = concrete_value(value)
     if array is None:
         return
@@ -89,6 +99,10 @@ def require_positive(name: str, value: Any) -> None:
     - `value`: the argument (scalar or array; every element is checked).
     """
     require_finite(name, value)
+    if type(value) in _PLAIN_NUMBERS:
+        if value <= 0:
+            raise ValueError(f"{name} must be positive, got {value:g}")
+        return
     array = concrete_value(value)
     if array is None:
         return
