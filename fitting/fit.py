@@ -57,7 +57,7 @@ from fitting.losses import (
 from fitting.models import Model, get_model
 from fitting.optima import with_other_optima
 from fitting.parameters import Layout, Parameter, Parameters, clip_into_bounds, make_layout
-from fitting.result import FitResult, FitSettings, RelativeErrors
+from fitting.result import FitResult, FitSettings, RelativeErrors, residual_verdict
 from fitting.solve import (
     CONVERGED,
     METHOD_NAMES,
@@ -225,11 +225,15 @@ def prepare(model, curve: Curve, params, weights, n_starts: int | None,
     return Prepared(model, curve, merged, layout, weights, base, starts, warm)
 
 
+def _distinct_starts(prepared: Prepared) -> int:
+    """The curve's distinct starts (fit_many pads a batch to a common number of starts)."""
+    return len({tuple(row) for row in prepared.starts.tolist()})
+
+
 def _result(prepared: Prepared, layout: Layout, options: SolverPlan, out: dict,
             wall_time: float, compile_time: float, settings: FitSettings) -> FitResult:
     curve, merged, weights = prepared.curve, prepared.params, prepared.weights
-    # Distinct starts (fit_many pads a batch of curves to a common number of starts).
-    n_starts = len({tuple(row) for row in prepared.starts.tolist()})
+    n_starts = _distinct_starts(prepared)
     out = {k: np.asarray(v) for k, v in out.items()}
     residual = out["predicted"] - curve.value
     n_points = int(np.count_nonzero(weights))
@@ -574,14 +578,25 @@ def _engine_result(prepared: Prepared, lane: dict, options: SolverPlan, errors: 
     layout = prepared.layout
     plain = dataclasses.replace(settings, relative_errors=None, combined_errors=None,
         counting_errors=None)
-    first = _result(prepared, layout, options, _lane_output(lane["first"], n), wall,
-                    compile_time, plain if errors.kind != "absolute" else settings)
+    first_out = _lane_output(lane["first"], n)
+
+    def first_result() -> FitResult:
+        return _result(prepared, layout, options, first_out, wall, compile_time,
+                       plain if errors.kind != "absolute" else settings)
+
     if errors.kind == "absolute":
+        first = first_result()
         return first if weighted else _with_absolute_errors(first)
-    if errors.kind != "poisson":
-        first = _with_absolute_errors(first)
-    if errors.kind == "combined" and first.lack_of_fit.systematic:
-        return _kept_unweighted(first, settings)
+    if errors.kind == "combined":
+        # The unweighted fit's verdict decides whether the error model can be estimated;
+        # its whole result is built only where it is kept (the verdict of the result that
+        # would be built: same residuals, weights and degrees of freedom).
+        verdict = residual_verdict(
+            first_out["predicted"] - prepared.curve.value, prepared.weights,
+            prepared.curve.value, int(np.count_nonzero(prepared.weights)) - len(layout.free),
+            options.loss, np.ones(n, dtype=bool))
+        if verdict.systematic:
+            return _kept_unweighted(_with_absolute_errors(first_result()), settings)
     if bool(lane["polish_passes"]):
         return None
     passes = int(lane["passes"])
@@ -592,10 +607,11 @@ def _engine_result(prepared: Prepared, lane: dict, options: SolverPlan, errors: 
     reweighted = dataclasses.replace(prepared, weights=np.asarray(lane["weights"])[:n])
     single = dataclasses.replace(options, warmup_steps=0)
     final = _result(reweighted, layout, single, final_out, wall, compile_time, settings)
+    # What the first fit's result would say of its starts.
+    of_first = {"n_starts": _distinct_starts(prepared), "init_params": prepared.params,
+                "start_losses": first_out["start_losses"]}
     if errors.kind == "poisson":
-        final = dataclasses.replace(final, n_starts=first.n_starts,
-                                    init_params=first.init_params,
-                                    start_losses=first.start_losses)
+        final = dataclasses.replace(final, **of_first)
         return _with_counting_errors(final, passes)
     if errors.kind == "relative":
         method = ("relative errors: reweighted by 1/model^2 until consistent "
@@ -604,9 +620,7 @@ def _engine_result(prepared: Prepared, lane: dict, options: SolverPlan, errors: 
         method = ("additive plus proportional errors: reweighted by 1/(a^2 + (b model)^2), a "
                   "and b estimated from the residuals, until consistent "
                   f"({passes} passes)")
-    final = dataclasses.replace(final, method=f"{final.method}; {method}",
-                                n_starts=first.n_starts, init_params=first.init_params,
-                                start_losses=first.start_losses)
+    final = dataclasses.replace(final, method=f"{final.method}; {method}", **of_first)
     if errors.kind == "relative":
         final = _with_effective_dof(final)
         return dataclasses.replace(final, error_model=ErrorEstimate("relative", 0.0,

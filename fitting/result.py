@@ -107,6 +107,23 @@ class FitStats:
     compile_time: float
 
 
+def residual_verdict(residuals: np.ndarray, weights: np.ndarray, observed: np.ndarray,
+                     dof: float, loss_name: str, described: np.ndarray) -> LackOfFit:
+    """The lack-of-fit verdict of a (not counting) fit from its arrays: what
+    :attr:`FitResult.lack_of_fit` gives, for a fit whose result is not built (yet).
+
+    **Arguments:** `residuals` (model - data) and `weights` per point, `observed` (the data),
+    `dof`, `loss_name` (``"sse"`` or ``"mae"``, whose weights multiply ``|r|``) and
+    `described` (:meth:`FitResult.described_points`).
+    """
+    weights = np.asarray(weights, dtype=float)
+    if loss_name == "mae":
+        weights = weights**2
+    used = weights > 0
+    peak = float(np.max(np.abs(observed[used]), initial=0.0))
+    return lack_of_fit_test(residuals, weights, dof=dof, peak=peak, described=described)
+
+
 @dataclass(frozen=True, eq=False)
 class FitResult:
     """The outcome of a fit: values, uncertainty, convergence and the fitted curve.
@@ -265,13 +282,8 @@ class FitResult:
         if self.counting:
             return counting_lack_of_fit(self.observed, self.predicted, self.exposure,
                                         len(self.free_names))
-        weights = np.asarray(self.weights, dtype=float)
-        if self.loss_name == "mae":
-            weights = weights**2
-        used = weights > 0
-        peak = float(np.max(np.abs(self.observed[used]), initial=0.0))
-        return lack_of_fit_test(self.residuals, weights, dof=self.dof, peak=peak,
-                                described=self.described_points())
+        return residual_verdict(self.residuals, self.weights, self.observed, self.dof,
+                                self.loss_name, self.described_points())
 
     @property
     def counting(self) -> bool:
