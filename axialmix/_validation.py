@@ -13,6 +13,7 @@ import math
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 __all__ = [
@@ -41,8 +42,6 @@ def array_namespace(*values: Any):
     cost NumPy operations instead of JAX dispatches, and stay JAX arrays inside a trace or
     when given JAX arrays.
     """
-    import jax.numpy as jnp
-
     return jnp if any(isinstance(v, jax.Array) for v in values) else np
 
 

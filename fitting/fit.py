@@ -141,8 +141,7 @@ def merge_parameters(model: Model, params, curve: Curve | None,
     A number replaces only the start value; a :class:`Parameter` replaces the whole setting.
     `defaults`: ``model.parameters(curve)`` when the caller already has it (it is not changed).
     """
-    merged = (model.parameters(curve) if defaults is None
-              else Parameters(dict(defaults.items())))
+    merged = model.parameters(curve) if defaults is None else defaults.copy()
     if params is None:
         return merged
     for name, setting in params.items():
@@ -596,7 +595,7 @@ def _engine_result(prepared: Prepared, lane: dict, options: SolverPlan, errors: 
             prepared.curve.value, int(np.count_nonzero(prepared.weights)) - len(layout.free),
             options.loss, np.ones(n, dtype=bool))
         if verdict.systematic:
-            return _kept_unweighted(_with_absolute_errors(first_result()), settings)
+            return _kept_unweighted(first_result(), settings)
     if bool(lane["polish_passes"]):
         return None
     passes = int(lane["passes"])
