@@ -322,6 +322,7 @@ def test_finished_curves_hold_no_memory_of_their_own(long_csv, tmp_path):
     """A study's memory is that of its chunks: a finished curve keeps only where its record
     and summary line lie on disk, so the run's retained memory does not grow with the curves
     it has finished (the old run kept about 1.5 KB a curve: its table line, offsets, names)."""
+    import gc
     import tracemalloc
 
     template = read_long_csv(long_csv, "run")
@@ -342,11 +343,15 @@ def test_finished_curves_hold_no_memory_of_their_own(long_csv, tmp_path):
         for write in run._file_writes:
             write.result()
 
+    # Retained means reachable: garbage in reference cycles that the collector has not yet
+    # reached (a chunk's finished write closures, by its timing) is collected first.
     tracemalloc.start()
     try:
         append(250, 1000)
+        gc.collect()
         before = tracemalloc.take_snapshot()
         append(1000, count)
+        gc.collect()
         after = tracemalloc.take_snapshot()
     finally:
         tracemalloc.stop()
