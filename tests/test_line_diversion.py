@@ -285,6 +285,30 @@ def test_conservative_window_is_monotone_in_the_covariance():
             previous = (start, stop)
 
 
+def test_samples_that_never_settle_refuse_the_window_with_their_count():
+    # Log-normal samples of tau with a standard deviation of 6 in log tau: many samples have
+    # a tau far beyond the scan (hours against seconds) and settle at none of the scan's
+    # candidate ends (the nominal scan's span doubled up to 2^6 times). The refusal counts
+    # them; the count is checked here sample by sample with the unit's own F.
+    disturbance = Disturbance.square(0.2, 20.0, 10.0)
+    times = np.linspace(0.0, 300.0, 301)
+    values, covariance = [60.0, 30.0], np.diag([36.0, 1e-4])
+    with pytest.raises(DiversionRefused) as refused:
+        conservative_diversion_window(_closed_closed, values, covariance, disturbance, times,
+                                      samples=200, seed=4, scale="log", method="quantile",
+                                      **LIMITS)
+    nominal = diversion_window(Unit.closed_closed(*values), disturbance, times, **LIMITS)
+    scan = np.asarray(nominal.times)
+    ends = scan[0] + (scan[-1] - scan[0]) * 2.0 ** np.arange(7)
+    _, drawn = sample_units(_closed_closed, values, covariance, 200, seed=4, scale="log")
+    lags = ends - 20.0  # the square's last event: its end at 10 + 10 s
+    never = [bool(np.all(1.0 - np.asarray(Unit.closed_closed(tau, peclet).cumulative(lags))
+                         > 1e-4)) for tau, peclet in np.asarray(drawn)]
+    assert refused.value.nonfinite == 0
+    assert refused.value.unsettled == sum(never) > 0.01 * 200, (refused.value, sum(never))
+    assert f"have not settled by {ends[-1]:g} s" in str(refused.value)
+
+
 # ------------------------------------------------------------------ numerically inverted units
 EXCHANGE = {"tau": 5.0, "peclet": 20.0, "beta": 0.3, "k_d": 0.5}
 

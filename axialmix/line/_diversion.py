@@ -1070,6 +1070,40 @@ def _sample_settle_exact(unit_factory, parameters, disturbance, ends, batch: int
     return _unsettled_from(np.asarray(cumulative)[:count, : ends.shape[0]], lags)
 
 
+def _refuse_if_failing(nonfinite: int, nonfinite_reason: str, unsettled: int, end: float,
+                       samples: int, max_failed_share: float, time_unit: str) -> None:
+    """Raise :class:`DiversionRefused` when more than `max_failed_share` of the samples fail:
+    `nonfinite` of them for `nonfinite_reason`, `unsettled` not settled by `end`."""
+    failed = nonfinite + unsettled
+    if failed <= max_failed_share * samples:
+        return
+    reasons = []
+    if nonfinite:
+        reasons.append(f"{nonfinite} {nonfinite_reason}")
+    if unsettled:
+        reasons.append(f"{unsettled} have not settled by {end:g} {time_unit}")
+    raise DiversionRefused(
+        f"{failed} of {samples} samples ({failed / samples:.1%}, more than the "
+        f"{max_failed_share:.0%} allowed) fail: {' and '.join(reasons)}; the parameter "
+        "distribution reaches values where the model has no usable prediction, so no "
+        "conservative window is given", failed, nonfinite, unsettled, samples)
+
+
+def _refuse_never_settling(settle: np.ndarray, ends: np.ndarray, samples: int,
+                           max_failed_share: float, time_unit: str) -> None:
+    """Refuse before the samples' scan when too many samples have settled at none of the
+    candidate `ends` (``settle``: their ``1 - F`` there, ``(samples, ends)``): no finite value
+    at any, or above :data:`SETTLED` at all of them, the last being 2^_EXTENSIONS times the
+    nominal scan's span, the longest scan there is. F does not decrease, so such a sample
+    has not settled by the end of any scan: the scan (which for these samples would run to
+    its longest) would end in this refusal."""
+    never = ~(settle <= SETTLED).any(axis=1)
+    nothing = never & ~np.isfinite(settle).any(axis=1)
+    _refuse_if_failing(int(nothing.sum()), "give no finite F at any scan end",
+                       int((never & ~nothing).sum()), float(ends[-1]), samples,
+                       max_failed_share, time_unit)
+
+
 def _settled_scan(settle: np.ndarray, full: np.ndarray, scan: np.ndarray, step: int,
                   samples: int, lags: int) -> np.ndarray:
     """The samples' scan doubled (at its spacing) to the latest candidate end at which every
@@ -1211,6 +1245,7 @@ def conservative_diversion_window(
         # any of them needs (found first, exactly).
         settle = _sample_settle_exact(unit_factory, parameters, disturbance, ends, batch,
                                       programs)
+        _refuse_never_settling(settle, ends, samples, max_failed_share, nominal.time_unit)
         scan = _settled_scan(settle, full, scan, step, samples, lags)
         tables, horizon, table_record = _sample_tables(
             unit_factory, parameters, disturbance, scan, table_step, batch, inverted, programs)
@@ -1223,27 +1258,17 @@ def conservative_diversion_window(
                 programs, "divert-sample-settle", _sample_settle, unit_factory,
                 _pad_rows(parameters, batch), disturbance, ends,
                 _lag_horizon_host(disturbance, ends), batch))[:samples]
+        _refuse_never_settling(settle, ends, samples, max_failed_share, nominal.time_unit)
         scan = _settled_scan(settle, full, scan, step, samples, lags)
         starts, stops, diverts, finite, unsettled = _evaluate_samples(
             unit_factory, parameters, disturbance, scan, target, lower, upper, flow,
             _lag_horizon_host(disturbance, scan),  # static: a measured grid
             None, programs)
     late = finite & ~(unsettled <= SETTLED)
-    nonfinite = int((~finite).sum())
-    unsettled_count = int(late.sum())
-    failed = nonfinite + unsettled_count
-    if failed > max_failed_share * samples:
-        reasons = []
-        if nonfinite:
-            reasons.append(f"{nonfinite} give no finite outlet prediction")
-        if unsettled_count:
-            reasons.append(f"{unsettled_count} have not settled by {scan[-1]:g} "
-                           f"{nominal.time_unit}")
-        raise DiversionRefused(
-            f"{failed} of {samples} samples ({failed / samples:.1%}, more than the "
-            f"{max_failed_share:.0%} allowed) fail: {' and '.join(reasons)}; the parameter "
-            "distribution reaches values where the model has no usable prediction, so no "
-            "conservative window is given", failed, nonfinite, unsettled_count, samples)
+    failed = int((~finite).sum()) + int(late.sum())
+    _refuse_if_failing(int((~finite).sum()), "give no finite outlet prediction",
+                       int(late.sum()), float(scan[-1]), samples, max_failed_share,
+                       nominal.time_unit)
     valid = finite & ~late
     starts = np.where(valid, np.where(diverts, starts, np.inf), np.nan)
     stops = np.where(valid, np.where(diverts, stops, -np.inf), np.nan)
