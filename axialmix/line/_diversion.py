@@ -1265,10 +1265,10 @@ def conservative_diversion_window(
             _lag_horizon_host(disturbance, scan),  # static: a measured grid
             None, programs)
     late = finite & ~(unsettled <= SETTLED)
-    failed = int((~finite).sum()) + int(late.sum())
-    _refuse_if_failing(int((~finite).sum()), "give no finite outlet prediction",
-                       int(late.sum()), float(scan[-1]), samples, max_failed_share,
-                       nominal.time_unit)
+    nonfinite, unsettled_count = int((~finite).sum()), int(late.sum())
+    failed = nonfinite + unsettled_count
+    _refuse_if_failing(nonfinite, "give no finite outlet prediction", unsettled_count,
+                       float(scan[-1]), samples, max_failed_share, nominal.time_unit)
     valid = finite & ~late
     starts = np.where(valid, np.where(diverts, starts, np.inf), np.nan)
     stops = np.where(valid, np.where(diverts, stops, -np.inf), np.nan)
