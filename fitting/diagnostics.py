@@ -137,7 +137,8 @@ def identifiability(result: FitResult) -> Identifiability:
     largest = max(eigenvalues[0], 1e-300)
     ratios = eigenvalues / largest
     quantile = t_quantile(result.dof)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    # A curvature eigenvalue near zero gives an infinite half-width: no bound, as intended.
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         half_widths = np.where(eigenvalues > 0,
                                quantile * np.sqrt(variance / np.maximum(eigenvalues, 1e-300)),
                                np.inf)

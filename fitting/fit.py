@@ -230,7 +230,12 @@ def _distinct_starts(prepared: Prepared) -> int:
 
 
 def _result(prepared: Prepared, layout: Layout, options: SolverPlan, out: dict,
-            wall_time: float, compile_time: float, settings: FitSettings) -> FitResult:
+            wall_time: float, compile_time: float, settings: FitSettings, *,
+            method_note: str | None = None,
+            error_model: ErrorEstimate | None = None) -> FitResult:
+    """The fit result of one curve from a solver's outputs (`out`, the curve's own samples);
+    `method_note` is appended to the method's description and `error_model` is the error
+    model behind the weights (as given, without a result built twice)."""
     curve, merged, weights = prepared.curve, prepared.params, prepared.weights
     n_starts = _distinct_starts(prepared)
     out = {k: np.asarray(v) for k, v in out.items()}
@@ -271,6 +276,9 @@ def _result(prepared: Prepared, layout: Layout, options: SolverPlan, out: dict,
     method = METHOD_NAMES[options.method]
     if options.method != "adam" and options.warmup_steps > 0:
         method = f"{method} ({options.warmup_steps} adam steps first from random starts)"
+    if method_note is not None:
+        method = f"{method}; {method_note}"
+    extra = {} if error_model is None else {"error_model": error_model}
     return FitResult(
         model=prepared.model, params=fitted, init_params=merged, free_names=layout.free,
         values=values, stderr=stderr, ci95=ci95, covariance=uncertainty.covariance,
@@ -283,7 +291,7 @@ def _result(prepared: Prepared, layout: Layout, options: SolverPlan, out: dict,
         success=converged and bool(np.isfinite(loss)), converged=converged, status=status,
         message=message, method=method, curve=curve, weights=weights,
         predicted=out["predicted"], residuals=residual, jacobian=out["jacobian"],
-        settings=settings,
+        settings=settings, **extra,
     )
 
 
@@ -524,6 +532,13 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
     options = _without_idle_warmup(options, prepared)
     errors = _error_plan(settings)
     layout = prepared[0].layout
+    # What every curve's results share: the settings of the unweighted first fit and the
+    # plan of the passes (made once, not per curve).
+    shared = _EngineShared(
+        settings, dataclasses.replace(settings, relative_errors=None, combined_errors=None,
+                                      counting_errors=None),
+        options, dataclasses.replace(options, warmup_steps=0), errors,
+        weights is not None or counting)
     results: list[FitResult | None] = [None] * len(curves)
     polish: list[int] = []
     groups: dict[int, list[int]] = {}
@@ -542,8 +557,7 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
         share, compile_share = wall / len(members), compile_time / len(members)
         for row, i in enumerate(members):
             lane = jax.tree.map(lambda a, row=row: a[row], out)
-            result = _engine_result(prepared[i], lane, options, errors, settings, share,
-                                    compile_share, weights is not None or counting)
+            result = _engine_result(prepared[i], lane, shared, share, compile_share)
             if result is None:
                 polish.append(i)
             else:
@@ -566,26 +580,38 @@ def _lane_output(lane: dict, n: int) -> dict:
     return out
 
 
-def _engine_result(prepared: Prepared, lane: dict, options: SolverPlan, errors: ErrorPlan,
-                   settings: FitSettings, wall: float, compile_time: float,
-                   weighted: bool) -> FitResult | None:
+@dataclass(frozen=True)
+class _EngineShared:
+    """What the results of one batch of engine fits share: the settings (and those of the
+    unweighted first fit), the solver plan (and that of the passes, without the warm-up),
+    the error model and whether the curves came with weights."""
+
+    settings: FitSettings
+    plain: FitSettings
+    options: SolverPlan
+    single: SolverPlan
+    errors: ErrorPlan
+    weighted: bool
+
+
+def _engine_result(prepared: Prepared, lane: dict, shared: _EngineShared, wall: float,
+                   compile_time: float) -> FitResult | None:
     """The fit result of one curve from the engine's arrays, or ``None`` where the curve
     needs the multi-start solver's polishing."""
     if bool(lane["polish_first"]):
         return None
+    settings, options, errors = shared.settings, shared.options, shared.errors
     n = len(prepared.curve)
     layout = prepared.layout
-    plain = dataclasses.replace(settings, relative_errors=None, combined_errors=None,
-        counting_errors=None)
     first_out = _lane_output(lane["first"], n)
 
     def first_result() -> FitResult:
         return _result(prepared, layout, options, first_out, wall, compile_time,
-                       plain if errors.kind != "absolute" else settings)
+                       shared.plain if errors.kind != "absolute" else settings)
 
     if errors.kind == "absolute":
         first = first_result()
-        return first if weighted else _with_absolute_errors(first)
+        return first if shared.weighted else _with_absolute_errors(first)
     if errors.kind == "combined":
         # The unweighted fit's verdict decides whether the error model can be estimated;
         # its whole result is built only where it is kept (the verdict of the result that
@@ -600,33 +626,28 @@ def _engine_result(prepared: Prepared, lane: dict, options: SolverPlan, errors: 
         return None
     passes = int(lane["passes"])
     final_out = _lane_output(lane["final"], n)
-    final_out["start_losses"] = np.asarray(lane["final"]["scaled_loss"] *
-                                           lane["final"]["scale"])[None]
+    # What the first fit's result says of its starts (the passes share its starts and
+    # settings: the same number of distinct starts and initial parameters).
+    final_out["start_losses"] = first_out["start_losses"]
     final_out["evaluations"] = lane["evaluations"]
     reweighted = dataclasses.replace(prepared, weights=np.asarray(lane["weights"])[:n])
-    single = dataclasses.replace(options, warmup_steps=0)
-    final = _result(reweighted, layout, single, final_out, wall, compile_time, settings)
-    # What the first fit's result would say of its starts.
-    of_first = {"n_starts": _distinct_starts(prepared), "init_params": prepared.params,
-                "start_losses": first_out["start_losses"]}
     if errors.kind == "poisson":
-        final = dataclasses.replace(final, **of_first)
+        final = _result(reweighted, layout, shared.single, final_out, wall, compile_time,
+                        settings)
         return _with_counting_errors(final, passes)
     if errors.kind == "relative":
-        method = ("relative errors: reweighted by 1/model^2 until consistent "
-                  f"({passes} passes)")
-    else:
-        method = ("additive plus proportional errors: reweighted by 1/(a^2 + (b model)^2), a "
-                  "and b estimated from the residuals, until consistent "
-                  f"({passes} passes)")
-    final = dataclasses.replace(final, method=f"{final.method}; {method}", **of_first)
-    if errors.kind == "relative":
-        final = _with_effective_dof(final)
+        note = f"relative errors: reweighted by 1/model^2 until consistent ({passes} passes)"
+        final = _with_effective_dof(_result(reweighted, layout, shared.single, final_out,
+                                            wall, compile_time, settings, method_note=note))
         return dataclasses.replace(final, error_model=ErrorEstimate("relative", 0.0,
                                                                     final.sigma, passes))
+    note = ("additive plus proportional errors: reweighted by 1/(a^2 + (b model)^2), a "
+            "and b estimated from the residuals, until consistent "
+            f"({passes} passes)")
     a, b = (float(x) for x in lane["sizes"])
-    return _with_estimated_weight_shape(dataclasses.replace(
-        final, error_model=ErrorEstimate("combined", a, b, passes)))
+    return _with_estimated_weight_shape(_result(
+        reweighted, layout, shared.single, final_out, wall, compile_time, settings,
+        method_note=note, error_model=ErrorEstimate("combined", a, b, passes)))
 
 
 def _fit_polished(model, curves, params, weights, settings: FitSettings) -> list[FitResult]:
