@@ -23,7 +23,11 @@ the run's two halves and, with ``--others``, over the second halves of independe
 same section (other seeds; every pair of runs), floors that hold what the whole bed shares.
 
     python benchmarks/dem.py --section A/run.npz --others B/run.npz,C/run.npz \
-        --estimator likelihood --layouts 24x1,24x2,24x4,48x3 --lags 0.5,1.0 --bootstrap 0
+        --estimator likelihood --layouts 24x1,24x1x4,48x1x4 --lags 0.5,1.0 --bootstrap 0
+
+Layouts are axial layers x equal-area rings, or axial x rings x angular sectors (AxRxS; the
+sectors hold equal shares of the spheres of the learning window, and the independent runs use
+the same sector edges).
 
 The mixer is the source's geometry (radius 0.1 m, length 0.5 m; see axialmix.dem.BladedMixer)
 with 1,500 + 1,500 spheres of 8.2 mm: the same 5 % solid fill as the source's 5,000 + 5,000
@@ -53,11 +57,12 @@ N_REGIONS = 10
 
 def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
             delays_s: tuple[float, ...] = (1.0, 2.0, 4.0), estimator: str = "logm",
-            layouts: tuple[tuple[int, int], ...] = ((6, 1), (12, 1), (24, 1), (12, 2)),
+            layouts: tuple[tuple[int, ...], ...] = ((12, 1), (24, 1), (24, 1, 4), (48, 1, 4)),
             others: tuple[str, ...] = (), bootstrap: int = 200) -> None:
     from axialmix.dem import (
         DEMRun,
         cell_length_limit,
+        cells_of_run,
         dem_transport,
         markov_test,
         repeat_floor,
@@ -85,25 +90,25 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
     limit = cell_length_limit(transport.velocity, transport.dispersion)
     print(f"cell length rule: dx <= 2 D_z/|v| = {limit * 1e3:.1f} mm")
     half = run.n_frames // 2
-    z = run.positions[:, :, 2]
-    r = np.hypot(run.positions[:, :, 0], run.positions[:, :, 1])
     print("\ncells        lag (s)  v net (mm/s) [95 %]        D_z net (mm²/s) [95 %]   clipped"
           "  CK err/noise  tracer err/floor: one start, phase-averaged (err/floor), own chain, "
           "DEM itself | err over the floor of two windows, of independent runs")
     print(f"networks estimated by {estimator}"
           + (f"; independent runs of the section: {', '.join(others)}" if others else ""))
-    for n_cells, n_radial in layouts:
-        cells = axial_cells(z, g.length, n_cells, periodic=True, radius=r,
-                            vessel_radius=g.radius, n_radial=n_radial)
-        cells_others = [axial_cells(o.positions[:, :, 2], g.length, n_cells, periodic=True,
-                                    radius=np.hypot(o.positions[:, :, 0], o.positions[:, :, 1]),
-                                    vessel_radius=g.radius, n_radial=n_radial)
-                        for o in repeats]
-        n = n_cells * n_radial
-        centres = np.repeat((np.arange(n_cells) + 0.5) * g.length / n_cells, n_radial)
+    for layout in layouts:
+        n_cells, n_radial, n_sectors = (tuple(layout) + (1, 1))[:3]
+        # Sectors placed on the learning window (the first half) of this run, and the same
+        # cells (edges) for the independent runs.
+        mine = cells_of_run(run, n_cells, n_radial=n_radial, n_sectors=n_sectors,
+                            edge_frames=slice(0, half))
+        cells, n, per_layer = mine.cells, mine.n_cells, mine.per_layer
+        cells_others = [cells_of_run(o, n_cells, n_radial=n_radial,
+                                     sector_edges=mine.sector_edges).cells for o in repeats]
+        centres = mine.centres
         for lag_s in lags:
             lag = max(1, round(lag_s / dt))
-            label = f"{n_cells}x{n_radial} ({g.length / n_cells * 1e3:.0f} mm)"
+            label = (f"{'x'.join(str(k) for k in (n_cells, n_radial, n_sectors)[:len(layout)])}"
+                     f" ({g.length / n_cells * 1e3:.0f} mm)")
             try:
                 learned = learn_network(cells[:half], n, dt, lag, round(g.revolution_time / dt),
                                         centres=centres, period=g.length, estimator=estimator,
@@ -121,23 +126,25 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
             # Delays that are whole multiples of every lag: there a Markov chain of the lag is
             # defined without interpolating between its steps.
             delays = tuple(round(t / dt) for t in delays_s)
-            one = tracer_spreading(cells, learned, dt, half, delays, n_radial=n_radial)
+            one = tracer_spreading(cells, learned, dt, half, delays, cells_per_layer=per_layer)
             starts = np.arange(half, run.n_frames - max(delays), round(0.05 / dt))
-            spread = tracer_spreading(cells, learned, dt, starts, delays, n_radial=n_radial)
-            oracle = own_chain_error(cells, n, n_radial, lag, starts, delays, spread)
+            spread = tracer_spreading(cells, learned, dt, starts, delays,
+                                      cells_per_layer=per_layer)
+            oracle = own_chain_error(cells, n, per_layer, lag, starts, delays, spread)
             # The DEM predicting itself: the tracer released over the first half against the
             # same tracer over the second half (the run's slow, shared fluctuations, which
             # two halves of the spheres of one window do not see).
             early = tracer_spreading(cells, learned, dt, np.arange(0, half - max(delays),
                                                                   round(0.05 / dt)),
-                                     delays, n_radial=n_radial)
+                                     delays, cells_per_layer=per_layer)
             window = float(np.abs(early.dem - spread.dem).mean() / spread.floor.mean())
             # The floors of two equivalent measurements (axialmix.dem.repeat_floor): the same
             # tracer over the first and the second half of this run, and over the second half
             # of this run and of independent runs (other seeds), every pair, when given.
             by_windows = spread.error.mean() / repeat_floor(early, spread).mean()
             if cells_others:
-                twins = [tracer_spreading(c, learned, dt, starts, delays, n_radial=n_radial)
+                twins = [tracer_spreading(c, learned, dt, starts, delays,
+                                          cells_per_layer=per_layer)
                          for c in cells_others]
                 by_runs = f"{spread.error.mean() / repeat_floor(spread, *twins).mean():6.2f}"
             else:
@@ -159,7 +166,7 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
           "the whole bed shares")
 
 
-def own_chain_error(cells, n, n_radial, lag, starts, delays, spread) -> float:
+def own_chain_error(cells, n, per_layer, lag, starts, delays, spread) -> float:
     """Error over the noise floor of the second half's own empirical chain ``T(lag)^k``
     (NaN where a delay is not a whole number of lags)."""
     from axialmix.dem import count_matrix
@@ -170,11 +177,11 @@ def own_chain_error(cells, n, n_radial, lag, starts, delays, spread) -> float:
     transition = counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
     p0 = np.zeros(n)
     for s0 in starts:
-        members = cells[s0] // n_radial == 0
+        members = cells[s0] // per_layer == 0
         p0 += np.bincount(cells[s0][members], minlength=n) / members.sum()
     p0 /= len(starts)
     errors = [np.abs(spread.dem[k] - (p0 @ np.linalg.matrix_power(transition, d // lag))
-                     .reshape(-1, n_radial).sum(axis=1)).mean()
+                     .reshape(-1, per_layer).sum(axis=1)).mean()
               for k, d in enumerate(delays)]
     return float(np.mean(errors) / spread.floor.mean())
 
@@ -195,8 +202,9 @@ def main() -> None:
                              "floor of independent runs")
     parser.add_argument("--bootstrap", type=int, default=200,
                         help="bootstrap replicates of each network (0: no intervals)")
-    parser.add_argument("--layouts", default="6x1,12x1,24x1,12x2",
-                        help="with --section: axial x radial cells (comma-separated)")
+    parser.add_argument("--layouts", default="12x1,24x1,24x1x4,48x1x4",
+                        help="with --section: cells as AxR or AxRxS: axial layers x equal-area "
+                             "rings x angular sectors of equal occupancy (comma-separated)")
     args = parser.parse_args()
     if args.section:
         section(args.section, tuple(float(x) for x in args.lags.split(",")),

@@ -227,3 +227,67 @@ def test_repeat_floor_by_hand_and_its_refusals():
         repeat_floor(spreading(base), spreading(base[:, :2]))
     with pytest.raises(ValueError, match="share"):
         repeat_floor(spreading(base), spreading(base, times * 2))
+
+
+def test_sub_cells_that_are_markov_predict_the_layers_the_lumped_layers_do_not():
+    # Two lanes per axial layer, one fast and one slow, exchanging slowly: the lanes'
+    # network (two cells per layer) is Markov and predicts the tracer's spread over the layers
+    # at the noise floor; the same spheres counted by layer alone have memory (a sphere in the
+    # fast lane stays fast for a while), and the layers' network misses by far more.
+    layers, holdup = 8, 300
+    sources, targets, moves = [], [], []
+    for a in range(layers):
+        for lane, (forward, backward) in enumerate(((24, 2), (2, 2))):
+            i = 2 * a + lane
+            sources += [i, i]
+            targets += [2 * ((a + 1) % layers) + lane, 2 * ((a - 1) % layers) + lane]
+            moves += [forward, backward]
+        sources += [2 * a, 2 * a + 1]
+        targets += [2 * a + 1, 2 * a]
+        moves += [3, 3]
+    lanes = ParticleNetwork(np.full(2 * layers, holdup), sources, targets, moves,
+                            step_seconds=0.01)
+    initial = np.column_stack([np.full(2 * layers, 200), np.full(2 * layers, 100)])
+    starts, delays = np.arange(1000, 1900, 10), (10, 30, 60)
+    by_lane, by_layer = [], []
+    for seed in range(4):
+        result = simulate(lanes, initial, 2000, engine="identity", seed=seed,
+                          tracked_species=[1])
+        cells = sequences_from_particle_events(result, 1)
+        learned = learn_network(cells[:1000], 2 * layers, 0.01, 1, 100, n_bootstrap=0,
+                                estimator="likelihood")
+        spreading = tracer_spreading(cells, learned, 0.01, starts, delays, cells_per_layer=2)
+        assert spreading.predicted.shape == (3, layers)
+        np.testing.assert_allclose(spreading.predicted.sum(axis=1), 1)
+        by_lane.append(spreading.ratio)
+        lumped = learn_network(cells[:1000] // 2, layers, 0.01, 1, 100, n_bootstrap=0,
+                               estimator="likelihood")
+        by_layer.append(tracer_spreading(cells // 2, lumped, 0.01, starts, delays).ratio)
+    assert 0.6 < np.mean(by_lane) < 1.5
+    assert min(by_layer) > 5 * max(by_lane)
+    with pytest.raises(ValueError, match="layers of 3"):
+        tracer_spreading(cells, learned, 0.01, starts, delays, cells_per_layer=3)
+
+
+def test_cells_of_run_numbers_layers_rings_and_sectors():
+    from axialmix.dem import cells_of_run
+
+    # Four spheres at fixed places in a periodic section: angles -3pi/4, -pi/4 (the bed),
+    # pi/2 (above the shaft) and -0.4 pi near the axis; two frames.
+    section = PaddleSection()
+    angles = np.array([-0.75 * np.pi, -0.25 * np.pi, 0.5 * np.pi, -0.4 * np.pi])
+    radii = np.array([0.9, 0.9, 0.9, 0.1]) * section.radius
+    z = np.array([0.1, 0.6, 1.1, 1.6]) * section.length / 2  # layers 0, 0, 1, 1 of 2
+    positions = np.stack([radii * np.cos(angles), radii * np.sin(angles), z], axis=1)
+    run = _run(section, positions[None].repeat(2, axis=0))
+    edges = np.array([-np.pi, -0.5 * np.pi, 0.0, np.pi])
+    layout = cells_of_run(run, 2, n_radial=2, sector_edges=edges)
+    assert layout.n_sectors == 3 and layout.per_layer == 6 and layout.n_cells == 12
+    # (axial * rings + ring) * sectors + sector
+    assert layout.cells[0].tolist() == [(0 * 2 + 1) * 3 + 0, (0 * 2 + 1) * 3 + 1,
+                                        (1 * 2 + 1) * 3 + 2, (1 * 2 + 0) * 3 + 1]
+    assert layout.names[:4] == ("z1r1s1", "z1r1s2", "z1r1s3", "z1r2s1")
+    np.testing.assert_allclose(layout.centres, np.repeat([0.25, 0.75], 6) * section.length)
+    # Equal-occupancy sectors from the run's own angles: each of the two holds two spheres.
+    own = cells_of_run(run, 1, n_sectors=2)
+    assert np.bincount(own.cells[0], minlength=2).tolist() == [2, 2]

@@ -449,3 +449,31 @@ def test_equivalent_adm_matches_the_spread_of_the_unwrapped_network():
     (m1, s1), (m2, s2) = moments
     assert (m2 - m1) / 2.0 == pytest.approx(v, rel=1e-6)
     assert (s2 - s1) / (2 * 2.0) == pytest.approx(d, rel=1e-3)
+
+
+def test_angular_sectors_and_equal_occupancy_edges():
+    from axialmix.dem import equal_occupancy_sectors
+
+    z = np.array([0.01, 0.01, 0.07, 0.07])
+    angle = np.array([-3.0, 0.5, -1.0, 3.1])
+    edges = np.array([-np.pi, -np.pi / 2, np.pi / 2, np.pi])
+    assert axial_cells(z, 0.1, 2, angle=angle, sector_edges=edges).tolist() == [0, 1, 4, 5]
+    r = np.array([0.09, 0.01, 0.09, 0.01])
+    both = axial_cells(z, 0.1, 2, radius=r, vessel_radius=0.1, n_radial=2, angle=angle,
+                       sector_edges=edges)
+    assert both.tolist() == [(0 * 2 + 1) * 3 + 0, (0 * 2 + 0) * 3 + 1,
+                             (1 * 2 + 1) * 3 + 1, (1 * 2 + 0) * 3 + 2]
+    # A bed in the lower left quarter: equal shares, outer edges -pi and pi.
+    rng = np.random.default_rng(1)
+    bed = rng.uniform(-np.pi, -np.pi / 2, 40_000)
+    quarters = equal_occupancy_sectors(bed, 4)
+    assert quarters[0] == -np.pi and quarters[-1] == np.pi
+    shares = np.bincount(axial_cells(np.zeros_like(bed), 1.0, 1, angle=bed,
+                                     sector_edges=quarters), minlength=4) / bed.size
+    np.testing.assert_allclose(shares, 0.25, atol=0.01)
+    with pytest.raises(ValueError, match="rise strictly"):
+        axial_cells(z, 0.1, 2, angle=angle, sector_edges=[-np.pi, 1.0, 0.5, np.pi])
+    with pytest.raises(ValueError, match="need the angle"):
+        axial_cells(z, 0.1, 2, sector_edges=edges)
+    with pytest.raises(ValueError, match="distinct sectors"):
+        equal_occupancy_sectors(np.zeros(10), 3)

@@ -4,6 +4,8 @@
   tracks: the mean axial velocity, the drift-corrected mean-square displacement pooled over
   the spheres, ``D_z`` fitted on its linear part, and the apparent ``D_z(lag) = MSD / (2 lag)``
   at chosen lags (it depends on the lag where the motion has memory, such as blade passage).
+* :func:`cells_of_run`: the cell of every sphere in every frame (axial × radial rings ×
+  angular sectors), the cells the networks are learned on.
 * :func:`tracer_spreading`: spheres in chosen cells at a start frame are a tracer; their
   distribution over the cells later, in the DEM and as a learned network predicts it
   (``p(t) = p(0) exp(Q t)``), with the DEM's own noise floor from two random halves of the
@@ -22,12 +24,14 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ._learn import LearnedNetwork, axial_cells
+from ._learn import LearnedNetwork, axial_cells, equal_occupancy_sectors
 
 __all__ = [
     "DEMTransport",
     "Partition",
+    "RunCells",
     "TracerSpreading",
+    "cells_of_run",
     "dem_transport",
     "flux_partition",
     "region_counts",
@@ -127,31 +131,102 @@ class TracerSpreading:
         return float(self.error.mean() / floor) if floor > 0 else float("nan")
 
 
+@dataclass(frozen=True)
+class RunCells:
+    """The cells of a DEM run (SI units).
+
+    **Fields:** `cells` ``(frames, spheres)`` cell index (:func:`axial_cells`: every axial
+    layer a block of `per_layer` consecutive indices); `n_axial`, `n_radial`, `n_sectors`;
+    `sector_edges` the angular edges, rad (``None`` without sectors); `centres`
+    ``(n_cells,)`` axial centre of every cell, m; `names` (``z3r2s1``: axial layer 3, ring 2,
+    sector 1).
+    """
+
+    cells: np.ndarray
+    n_axial: int
+    n_radial: int
+    n_sectors: int
+    sector_edges: np.ndarray | None
+    centres: np.ndarray
+    names: tuple[str, ...]
+
+    @property
+    def per_layer(self) -> int:
+        """Cells in one axial layer (rings × sectors)."""
+        return self.n_radial * self.n_sectors
+
+    @property
+    def n_cells(self) -> int:
+        """All cells."""
+        return self.n_axial * self.per_layer
+
+
+def cells_of_run(run, n_axial: int, *, n_radial: int = 1, n_sectors: int = 1,
+                 sector_edges: np.ndarray | None = None, edge_frames: slice | None = None
+                 ) -> RunCells:
+    """The cell of every sphere in every frame of a DEM run.
+
+    **Arguments:**
+
+    - `run`: a :class:`axialmix.dem.DEMRun` (a periodic section is wrapped axially).
+    - `n_axial`: equal axial cells over the geometry's length.
+    - `n_radial`: equal-area rings per axial cell.
+    - `n_sectors`: angular sectors per ring, placed by :func:`equal_occupancy_sectors` on
+      the angles of the frames `edge_frames` (default all); or give `sector_edges` (rad)
+      to use the sectors of another run or window (then `n_sectors` is taken from them).
+
+    **Returns:** a :class:`RunCells`.
+    """
+    g = run.geometry
+    p = run.positions
+    angle = np.arctan2(p[:, :, 1], p[:, :, 0])
+    if sector_edges is None and n_sectors > 1:
+        window = angle if edge_frames is None else angle[edge_frames]
+        sector_edges = equal_occupancy_sectors(window, n_sectors)
+    if sector_edges is not None:
+        sector_edges = np.asarray(sector_edges, dtype=float)
+        n_sectors = sector_edges.size - 1
+    cells = axial_cells(p[:, :, 2], g.length, n_axial, periodic=g.periodic,
+                        radius=np.hypot(p[:, :, 0], p[:, :, 1]), vessel_radius=g.radius,
+                        n_radial=n_radial, angle=angle, sector_edges=sector_edges)
+    per_layer = int(n_radial) * int(n_sectors)
+    centres = np.repeat((np.arange(n_axial) + 0.5) * g.length / n_axial, per_layer)
+    names = tuple(f"z{a + 1}" + (f"r{k + 1}" if n_radial > 1 else "")
+                  + (f"s{j + 1}" if n_sectors > 1 else "")
+                  for a in range(n_axial) for k in range(n_radial) for j in range(n_sectors))
+    return RunCells(cells=cells, n_axial=int(n_axial), n_radial=int(n_radial),
+                    n_sectors=int(n_sectors), sector_edges=sector_edges, centres=centres,
+                    names=names)
+
+
 def tracer_spreading(cells: np.ndarray, learned: LearnedNetwork, frame_interval: float,
-                     start, delays: tuple[int, ...], n_radial: int = 1, seed: int = 0,
+                     start, delays: tuple[int, ...], cells_per_layer: int = 1, seed: int = 0,
                      splits: int = 20) -> TracerSpreading:
     """Compare a DEM tracer with the learned network's prediction.
 
     **Arguments:**
 
-    - `cells`: ``(frames, particles)`` cell of every sphere (the network's cells, index
-      ``axial * n_radial + ring``).
+    - `cells`: ``(frames, particles)`` cell of every sphere (the network's cells; every
+      axial layer a block of `cells_per_layer` consecutive indices, as :func:`axial_cells`
+      and :func:`cells_of_run` number them).
     - `learned`: the :class:`LearnedNetwork` (from other frames of the run).
     - `frame_interval`: s.
     - `start`: frame (or frames) at which the spheres in axial cell 0 become the tracer.
       With several start frames (spread over the blade phases) the DEM fractions are the
       mean over starts: the phase-averaged spreading a network describes.
     - `delays`: frames after each start to compare.
-    - `n_radial`: rings per axial cell; the tracer starts in the rings as the DEM has it, and
-      fractions are compared per axial cell.
+    - `cells_per_layer`: cells per axial layer (rings × sectors); the tracer starts in them
+      as the DEM has it, and fractions are compared per axial layer.
     - `seed`, `splits`: seed and number of the random splits of the spheres into two halves
       whose differences, averaged, give the noise floor (`halves` keeps the first split).
 
     **Returns:** a :class:`TracerSpreading` (fractions per axial cell).
     """
     n = learned.n_cells
-    n_axial = n // n_radial
-    axial = cells // n_radial
+    if cells_per_layer < 1 or n % cells_per_layer:
+        raise ValueError(f"{n} cells do not split into layers of {cells_per_layer}.")
+    n_axial = n // cells_per_layer
+    axial = cells // cells_per_layer
     starts = np.atleast_1d(np.asarray(start, dtype=int))
     delays = np.asarray(delays)
     if starts.max() + delays.max() >= cells.shape[0]:
@@ -183,7 +258,8 @@ def tracer_spreading(cells: np.ndarray, learned: LearnedNetwork, frame_interval:
         p0 += np.bincount(cells[s0][members], minlength=n) / members.sum()
     p0 /= starts.size
     predicted = np.stack([p0 @ scipy.linalg.expm(learned.rates * d * frame_interval)
-                          for d in delays]).reshape(delays.size, n_axial, n_radial).sum(axis=2)
+                          for d in delays])
+    predicted = predicted.reshape(delays.size, n_axial, cells_per_layer).sum(axis=2)
     return TracerSpreading(
         times=delays * frame_interval, dem=dem, predicted=predicted, halves=halves,
         error=np.abs(dem - predicted).mean(axis=1), floor=np.mean(floors, axis=0),

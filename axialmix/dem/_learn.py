@@ -39,6 +39,7 @@ __all__ = [
     "block_count_matrices",
     "cell_length_limit",
     "count_matrix",
+    "equal_occupancy_sectors",
     "learn_network",
     "markov_test",
     "observed_edges",
@@ -57,8 +58,10 @@ def axial_cells(
     radius: np.ndarray | None = None,
     vessel_radius: float | None = None,
     n_radial: int = 1,
+    angle: np.ndarray | None = None,
+    sector_edges: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Cell index of every sample: equal axial cells, optionally × equal-area radial rings.
+    """Cell index of every sample: equal axial cells, optionally × radial rings × angular sectors.
 
     **Arguments:**
 
@@ -66,14 +69,29 @@ def axial_cells(
     - `length`: axial length divided into `n_cells` equal cells, m.
     - `periodic`: wrap ``z`` into ``[0, length)`` first (a periodic section).
     - `radius`, `vessel_radius`, `n_radial`: distance from the axis (m, same shape as `z`),
-      the vessel radius, and the number of rings of equal cross-section area; cell index
-      ``axial * n_radial + ring``.
+      the vessel radius, and the number of rings of equal cross-section area.
+    - `angle`, `sector_edges`: the angle of every sample around the axis in the fixed (lab)
+      frame, rad, in ``[-pi, pi]`` (``atan2(y, x)``; same shape as `z`), and the increasing
+      edges of the angular sectors, rad, from ``-pi`` to ``pi`` (``k + 1`` edges for ``k``
+      sectors; :func:`equal_occupancy_sectors` places them where the bed is). In a bladed
+      blender the bed rises with the blades on one side and falls back on the other: sectors
+      tell the rising, resting and falling spheres apart, which move along the axis at
+      different speeds.
+
+    The cells of one axial layer are its ``n_radial × n_sectors`` sub-cells, and the index is
+    ``(axial * n_radial + ring) * n_sectors + sector``: every axial layer is a block of
+    consecutive indices (``index // (n_radial * n_sectors)`` is the axial cell).
 
     **Returns:** integer array of the shape of `z`; values outside ``[0, length)`` are clipped
     to the end cells (a closed vessel).
+
+    **Raises:** ``ValueError`` for a bad cell count, rings without radii, or sectors without
+    angles or with edges that do not rise from ``-pi`` to ``pi``.
     """
     if int(n_cells) != n_cells or n_cells < 1:
         raise ValueError(f"n_cells must be a positive whole number, got {n_cells}.")
+    if int(n_radial) != n_radial or n_radial < 1:
+        raise ValueError(f"n_radial must be a positive whole number, got {n_radial}.")
     z = np.asarray(z, dtype=float)
     if periodic:
         z = np.mod(z, length)
@@ -86,7 +104,46 @@ def axial_cells(
             0, n_radial - 1,
         )
         cells = cells * n_radial + rings
+    if sector_edges is not None:
+        edges = np.asarray(sector_edges, dtype=float)
+        if (edges.ndim != 1 or edges.size < 2 or not np.all(np.diff(edges) > 0)
+                or not np.isclose(edges[0], -np.pi) or not np.isclose(edges[-1], np.pi)):
+            raise ValueError("sector_edges must rise strictly from -pi to pi (rad).")
+        if angle is None:
+            raise ValueError("angular sectors need the angle of every sample.")
+        n_sectors = edges.size - 1
+        sectors = np.clip(np.searchsorted(edges, np.asarray(angle, float), side="right") - 1,
+                          0, n_sectors - 1)
+        cells = cells * n_sectors + sectors
     return cells
+
+
+def equal_occupancy_sectors(angle: np.ndarray, n_sectors: int) -> np.ndarray:
+    """Edges of `n_sectors` angular sectors that each hold the same share of the samples.
+
+    A partly filled horizontal blender holds its bed in a fraction of the circle (and tilted
+    by the blades): sectors of equal angle would leave most of them empty. These edges split
+    the angles recorded (for example every sphere in every frame of the learning window) into
+    equal shares; the outer edges are ``-pi`` and ``pi``, so every angle has a sector.
+
+    **Arguments:** `angle`, rad, any shape (``atan2(y, x)`` around the axis); `n_sectors`.
+
+    **Returns:** ``n_sectors + 1`` increasing edges, rad, for :func:`axial_cells`.
+
+    **Raises:** ``ValueError`` when `n_sectors` is not a positive whole number or the angles
+    do not allow that many distinct sectors.
+    """
+    if int(n_sectors) != n_sectors or n_sectors < 1:
+        raise ValueError(f"n_sectors must be a positive whole number, got {n_sectors}.")
+    angle = np.asarray(angle, dtype=float).ravel()
+    angle = angle[np.isfinite(angle)]
+    if angle.size == 0:
+        raise ValueError("no finite angle to place sectors by.")
+    edges = np.quantile(angle, np.linspace(0.0, 1.0, int(n_sectors) + 1))
+    edges[0], edges[-1] = -np.pi, np.pi
+    if not np.all(np.diff(edges) > 0):
+        raise ValueError(f"the angles recorded do not fill {n_sectors} distinct sectors.")
+    return edges
 
 
 def _as_sequences(sequences) -> list[np.ndarray]:

@@ -96,6 +96,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     learn.add_argument("--cells", type=_count, default=12, help="axial cells (default 12)")
     learn.add_argument("--radial", type=_count, default=1,
                        help="equal-area radial rings per axial cell (default 1)")
+    learn.add_argument("--sectors", type=_count, default=1,
+                       help="angular sectors per ring, each holding an equal share of the "
+                       "recorded spheres (default 1; 4 tells the rising, resting and "
+                       "falling parts of the bed apart)")
     learn.add_argument("--lag", type=_positive, default=0.1, help="lag, s (default 0.1)")
     learn.add_argument("--bootstrap", type=_count, default=200,
                        help="bootstrap replicates (default 200)")
@@ -144,16 +148,14 @@ def _check_out(path: str) -> Path:
 
 
 def _learn(args, out: Path) -> int:
-    import numpy as np
-
     from axialmix._files import write_csv, write_json
     from axialmix.dem import (
         BladedMixer,
         DEMRun,
         PaddleSection,
         RunSettings,
-        axial_cells,
         cell_length_limit,
+        cells_of_run,
         dem_transport,
         learn_network,
         markov_test,
@@ -194,14 +196,12 @@ def _learn(args, out: Path) -> int:
         raise _BadInput(f"the run has {run.n_frames} frames; two revolutions of "
                         f"{block} frames beyond the lag are needed (a longer --duration)"
                         + kept)
-    r = np.hypot(run.positions[:, :, 0], run.positions[:, :, 1])
-    cells = axial_cells(run.positions[:, :, 2], g.length, args.cells, periodic=g.periodic,
-                        radius=r, vessel_radius=g.radius, n_radial=args.radial)
-    n = args.cells * args.radial
+    try:
+        layout = cells_of_run(run, args.cells, n_radial=args.radial, n_sectors=args.sectors)
+    except ValueError as error:
+        raise _BadInput(f"{error}{kept}") from None
+    cells, n, names, centres = layout.cells, layout.n_cells, layout.names, layout.centres
     width = g.length / args.cells
-    centres = np.repeat((np.arange(args.cells) + 0.5) * width, args.radial)
-    names = tuple(f"z{a + 1}" + (f"r{k + 1}" if args.radial > 1 else "")
-                  for a in range(args.cells) for k in range(args.radial))
     try:
         learned = learn_network(cells, n, run.frame_interval, lag, block,
                                 n_bootstrap=args.bootstrap, seed=args.seed, names=names,
@@ -225,6 +225,9 @@ def _learn(args, out: Path) -> int:
         "geometry": type(g).__name__, "particles": run.n_particles,
         "frames": run.n_frames, "frame_interval_s": run.frame_interval,
         "lag_s": learned.lag_seconds, "cells": n, "cell_length_m": width,
+        "axial_cells": args.cells, "radial_rings": args.radial, "angular_sectors": args.sectors,
+        "sector_edges_rad": (None if layout.sector_edges is None
+                             else layout.sector_edges.tolist()),
         "estimator": args.estimator,
         "dem": {"v_m_per_s": transport.velocity, "D_z_m2_per_s": transport.dispersion,
                 "D_z_window_s": list(transport.window), "Pe": transport.peclet,
