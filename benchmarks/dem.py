@@ -25,6 +25,9 @@ same section (other seeds; every pair of runs), floors that hold what the whole 
     python benchmarks/dem.py --section A/run.npz --others B/run.npz,C/run.npz \
         --estimator likelihood --layouts 24x1,24x1x4,48x1x4 --lags 0.5,1.0 --bootstrap 0
 
+With ``--every-run`` each run is the section in turn and the errors over the floors of
+independent runs are pooled over the runs.
+
 Layouts are axial layers x equal-area rings, or axial x rings x angular sectors (AxRxS; the
 sectors hold equal shares of the spheres of the learning window, and the independent runs use
 the same sector edges).
@@ -58,7 +61,9 @@ N_REGIONS = 10
 def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
             delays_s: tuple[float, ...] = (1.0, 2.0, 4.0), estimator: str = "logm",
             layouts: tuple[tuple[int, ...], ...] = ((12, 1), (24, 1), (24, 1, 4), (48, 1, 4)),
-            others: tuple[str, ...] = (), bootstrap: int = 200) -> None:
+            others: tuple[str, ...] = (), bootstrap: int = 200) -> dict:
+    """Print the section's table; returns ``{(layout, lag_s): (error, floor of runs)}``
+    (mean tracer fractions; the floor NaN without `others`)."""
     from axialmix.dem import (
         DEMRun,
         cell_length_limit,
@@ -95,6 +100,7 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
           "DEM itself | err over the floor of two windows, of independent runs")
     print(f"networks estimated by {estimator}"
           + (f"; independent runs of the section: {', '.join(others)}" if others else ""))
+    found = {}
     for layout in layouts:
         n_cells, n_radial, n_sectors = (tuple(layout) + (1, 1))[:3]
         # Sectors placed on the learning window (the first half) of this run, and the same
@@ -146,9 +152,11 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
                 twins = [tracer_spreading(c, learned, dt, starts, delays,
                                           cells_per_layer=per_layer)
                          for c in cells_others]
-                by_runs = f"{spread.error.mean() / repeat_floor(spread, *twins).mean():6.2f}"
+                floor_runs = float(repeat_floor(spread, *twins).mean())
+                by_runs = f"{spread.error.mean() / floor_runs:6.2f}"
             else:
-                by_runs = "     -"
+                floor_runs, by_runs = float("nan"), "     -"
+            found[(tuple(layout), lag * dt)] = (float(spread.error.mean()), floor_runs)
             print(f"{label:12s} {lag * dt:6.2f}  {v * 1e3:7.2f} [{vlo * 1e3:6.2f},{vhi * 1e3:6.2f}]"
                   f"   {d * 1e6:7.1f} [{dlo * 1e6:6.1f},{dhi * 1e6:6.1f}]   {learned.clipped:5.2f}"
                   f"   {ck:6.2f}     {one.ratio:5.2f}      {spread.ratio:5.2f} "
@@ -205,12 +213,32 @@ def main() -> None:
     parser.add_argument("--layouts", default="12x1,24x1,24x1x4,48x1x4",
                         help="with --section: cells as AxR or AxRxS: axial layers x equal-area "
                              "rings x angular sectors of equal occupancy (comma-separated)")
+    parser.add_argument("--every-run", action="store_true",
+                        help="with --section and --others: each run in turn is the section "
+                             "(learned on its first half, judged on its second against the "
+                             "others), and the errors pooled over the runs")
     args = parser.parse_args()
     if args.section:
-        section(args.section, tuple(float(x) for x in args.lags.split(",")),
-                tuple(float(x) for x in args.delays.split(",")), args.estimator,
-                tuple(tuple(int(v) for v in x.split("x")) for x in args.layouts.split(",")),
-                tuple(x for x in args.others.split(",") if x), args.bootstrap)
+        options = (tuple(float(x) for x in args.lags.split(",")),
+                   tuple(float(x) for x in args.delays.split(",")), args.estimator,
+                   tuple(tuple(int(v) for v in x.split("x")) for x in args.layouts.split(",")))
+        runs = [args.section] + [x for x in args.others.split(",") if x]
+        if args.every_run and len(runs) < 2:
+            raise SystemExit("--every-run needs --others")
+        rounds = range(len(runs)) if args.every_run else range(1)
+        found = [section(runs[i], *options, tuple(runs[:i] + runs[i + 1:]), args.bootstrap)
+                 for i in rounds]
+        if args.every_run:
+            # Each run learned on its first half and judged on its second against the floor
+            # of the independent runs: the mean error over the runs over their mean floor.
+            print("\npooled over the runs (each the section in turn): network error / floor of "
+                  "independent runs, per run and pooled")
+            for key in found[0]:
+                per_run = [f[key][0] / f[key][1] for f in found if key in f]
+                pooled = (np.mean([f[key][0] for f in found if key in f])
+                          / np.mean([f[key][1] for f in found if key in f]))
+                print(f"{'x'.join(map(str, key[0])):10s} lag {key[1]:5.2f} s: "
+                      + " ".join(f"{x:5.2f}" for x in per_run) + f"   pooled {pooled:5.2f}")
         return
     if args.quick:
         mixer = BladedMixer(particles=(300, 300), diameter=0.0082)
