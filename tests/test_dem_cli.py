@@ -77,6 +77,19 @@ def test_learn_writes_a_network_that_axialmix_reads(tmp_path):
     assert record["network"]["clipped_rate_share"] == 0
     learned = CompartmentNetwork.from_json(likely / "network.json")
     assert learned.n_compartments == 6 and all(c.rate > 0 for c in learned.connections)
+    # Angular sectors: 3 axial cells x 2 sectors of equal occupancy, named and recorded.
+    sectors = tmp_path / "sectors"
+    result = _axialmix("dem", "learn", "--run", str(out / "run.npz"), "--lag", "0.04",
+                       "--cells", "3", "--sectors", "2", "--bootstrap", "20", "--estimator",
+                       "likelihood", "--out", str(sectors))
+    assert result.returncode == 0, result.stderr
+    record = json.loads((sectors / "learn.json").read_text())
+    assert record["cells"] == 6 and record["angular_sectors"] == 2
+    edges = record["sector_edges_rad"]
+    assert len(edges) == 3 and edges[0] == pytest.approx(-np.pi)
+    assert edges[2] == pytest.approx(np.pi)
+    split = CompartmentNetwork.from_json(sectors / "network.json")
+    assert split.compartments[:3] == ("z1s1", "z1s2", "z2s1")
 
 
 @pytest.mark.skipif(not dem_available(), reason="the dem extra is not installed")
