@@ -172,6 +172,7 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
           "network's error over axialmix.dem.repeat_floor of the two windows, and of this "
           "run and the independent runs (--others, every pair), the floors that hold what "
           "the whole bed shares")
+    return found
 
 
 def own_chain_error(cells, n, per_layer, lag, starts, delays, spread) -> float:
