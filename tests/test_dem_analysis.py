@@ -291,3 +291,6 @@ def test_cells_of_run_numbers_layers_rings_and_sectors():
     # Equal-occupancy sectors from the run's own angles: each of the two holds two spheres.
     own = cells_of_run(run, 1, n_sectors=2)
     assert np.bincount(own.cells[0], minlength=2).tolist() == [2, 2]
+    for bad in ({"n_sectors": 0}, {"n_radial": 0}):
+        with pytest.raises(ValueError, match="positive whole number"):
+            cells_of_run(run, 2, **bad)

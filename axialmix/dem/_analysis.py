@@ -176,7 +176,12 @@ def cells_of_run(run, n_axial: int, *, n_radial: int = 1, n_sectors: int = 1,
       to use the sectors of another run or window (then `n_sectors` is taken from them).
 
     **Returns:** a :class:`RunCells`.
+
+    **Raises:** ``ValueError`` for counts that are not positive whole numbers, or sectors the
+    angles cannot fill.
     """
+    if int(n_sectors) != n_sectors or n_sectors < 1:
+        raise ValueError(f"n_sectors must be a positive whole number, got {n_sectors}.")
     g = run.geometry
     p = run.positions
     angle = np.arctan2(p[:, :, 1], p[:, :, 0])
