@@ -184,7 +184,9 @@ def cells_of_run(run, n_axial: int, *, n_radial: int = 1, n_sectors: int = 1,
         raise ValueError(f"n_sectors must be a positive whole number, got {n_sectors}.")
     g = run.geometry
     p = run.positions
-    angle = np.arctan2(p[:, :, 1], p[:, :, 0])
+    # Angles only where there are sectors (an array the size of the run).
+    angle = (np.arctan2(p[:, :, 1], p[:, :, 0])
+             if sector_edges is not None or n_sectors > 1 else None)
     if sector_edges is None and n_sectors > 1:
         window = angle if edge_frames is None else angle[edge_frames]
         sector_edges = equal_occupancy_sectors(window, n_sectors)
