@@ -14,10 +14,10 @@ import numpy as np
 import axialmix  # noqa: F401  (float64 before any JAX array is made)
 from fitting.parameters import Layout
 from fitting.solve.padding import pad_curve, padded_length
-from fitting.solve.programs import Program, export_key, run_program
+from fitting.solve.programs import Program, run_program
 from fitting.solve.second_order import newton_polish
 from fitting.solve.settings import SolverPlan
-from fitting.solve.single_start import single_start_function, solver_program
+from fitting.solve.single_start import solver_program
 from fitting.solve.status import PLATEAU, Status
 
 
@@ -114,10 +114,11 @@ class MultiStartSolver:
     def lbfgs_program(self) -> Program:
         """The L-BFGS program that redoes a start where Levenberg–Marquardt crawled (built once)."""
         if self._lbfgs is None:
-            options = dataclasses.replace(self.options, method="lbfgs")
-            self._lbfgs = Program(single_start_function(self.model, self.layout, options),
-                                   f"lbfgs-{self.model.name}",
-                                   export_key(self.model, self.layout, options))
+            # Through the process's shared programs: a plan without warm-up (the one-start
+            # refits of the error models' passes) runs on the L-BFGS program of the same plan
+            # with a warm-up, its warm-up skipped at run time (one program compiled, not two).
+            self._lbfgs = solver_program(self.model, self.layout,
+                                         dataclasses.replace(self.options, method="lbfgs"))
         return self._lbfgs
 
     def _check(self, out: dict, time, observed, weights) -> tuple[Status, float]:

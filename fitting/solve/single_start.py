@@ -121,7 +121,8 @@ def solver_program(model, layout: Layout, options: SolverPlan) -> Program:
                         and dataclasses.replace(plan, warmup_steps=0) == options), None)
     if program is None:
         program = Program(single_start_function(model, layout, options),
-                           f"solve-{model.name}", export_key(model, layout, options))
+                           f"{'lbfgs' if options.method == 'lbfgs' else 'solve'}-{model.name}",
+                           export_key(model, layout, options))
         _PROGRAMS[key] = program
         while len(_PROGRAMS) > _MAX_PROGRAMS:
             _PROGRAMS.popitem(last=False)
