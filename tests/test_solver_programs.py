@@ -2,6 +2,7 @@
 the same plan with one (its warm-up skipped at run time), for Levenberg–Marquardt and for the
 L-BFGS polish alike, and gives the numbers of a program compiled without the warm-up."""
 
+import collections
 import dataclasses
 
 import numpy as np
@@ -10,7 +11,7 @@ from axialmix.analytic.closed import exit_age_closed
 from fitting.data import Curve
 from fitting.fit import prepare
 from fitting.models import get_model
-from fitting.solve import MultiStartSolver, make_plan, pad_curve, padded_length
+from fitting.solve import MultiStartSolver, make_plan, pad_curve, padded_length, single_start
 from fitting.solve.programs import Program, export_key, run_program
 from fitting.solve.settings import MultiStart, Optimiser
 from fitting.solve.single_start import single_start_function, solver_program
@@ -21,7 +22,9 @@ def _plan(method: str, warmup: int):
     return dataclasses.replace(plan, method=method)
 
 
-def test_a_plan_without_warm_up_shares_the_program_of_the_plan_with_one():
+def test_a_plan_without_warm_up_shares_the_program_of_the_plan_with_one(monkeypatch):
+    # A registry of its own: programs made by earlier tests of this process do not count.
+    monkeypatch.setattr(single_start, "_PROGRAMS", collections.OrderedDict())
     model = get_model("four-compartment")
     t = np.linspace(0.2, 30.0, 40)
     curve = Curve("c", t, 1000.0 * np.exp(-0.3 * t) * (1.0 - np.exp(-t)), time_unit="s")
