@@ -204,7 +204,8 @@ def main() -> None:
                         help="with --section: lags of the learned networks, s (comma-separated)")
     parser.add_argument("--delays", default="1,2,4",
                         help="with --section: tracer delays compared, s (comma-separated)")
-    parser.add_argument("--estimator", default="logm", choices=("logm", "likelihood"),
+    parser.add_argument("--estimator", default="logm",
+                        choices=("logm", "likelihood", "stationary"),
                         help="with --section: how rates are estimated from the counts")
     parser.add_argument("--others", default="", metavar="RUN[,RUN...]",
                         help="independent runs of the same section (other seeds): the noise "

@@ -8,7 +8,13 @@ import sys
 import numpy as np
 import pytest
 
-from axialmix.dem import dem_available
+from axialmix.dem import (
+    DEMRun,
+    block_count_matrices,
+    cells_of_run,
+    count_occupancy,
+    dem_available,
+)
 from axialmix.network import CompartmentNetwork
 
 _COMMAND = [sys.executable, "-c", "import sys; from fitting.cli import main; sys.exit(main())"]
@@ -77,6 +83,27 @@ def test_learn_writes_a_network_that_axialmix_reads(tmp_path):
     assert record["network"]["clipped_rate_share"] == 0
     learned = CompartmentNetwork.from_json(likely / "network.json")
     assert learned.n_compartments == 6 and all(c.rate > 0 for c in learned.connections)
+    # The stationary estimator: the network written holds the occupancy of the counted
+    # frames (whole blocks of one revolution) as its steady state, recomputed here from the
+    # saved run.
+    held = tmp_path / "held"
+    result = _axialmix("dem", "learn", "--run", str(out / "run.npz"), "--lag", "0.04",
+                       "--cells", "6", "--bootstrap", "20", "--estimator", "stationary",
+                       "--out", str(held))
+    assert result.returncode == 0, result.stderr
+    assert json.loads((held / "learn.json").read_text())["estimator"] == "stationary"
+    written = CompartmentNetwork.from_json(held / "network.json")
+    index = {name: i for i, name in enumerate(written.compartments)}
+    q = np.zeros((6, 6))
+    for c in written.connections:
+        q[index[c.source], index[c.target]] = c.rate
+    q -= np.diag(q.sum(axis=1))
+    run = DEMRun.load(out / "run.npz")
+    cells = cells_of_run(run, 6).cells
+    block = round(run.geometry.revolution_time / run.frame_interval)
+    counted = block_count_matrices(cells, 6, round(0.04 / run.frame_interval), block)
+    occupancy = count_occupancy(counted.sum(axis=0))
+    assert np.abs(occupancy @ q).max() < 1e-6 * np.abs(np.diag(q)).max()
     # Angular sectors: 3 axial cells x 2 sectors of equal occupancy, named and recorded.
     sectors = tmp_path / "sectors"
     result = _axialmix("dem", "learn", "--run", str(out / "run.npz"), "--lag", "0.04",

@@ -15,6 +15,7 @@ from axialmix.dem._learn import (
     block_count_matrices,
     cell_length_limit,
     count_matrix,
+    count_occupancy,
     learn_network,
     markov_test,
     observed_edges,
@@ -130,6 +131,100 @@ def test_likelihood_network_is_valid_and_at_least_as_likely_as_the_clipped_logar
     assert np.all(rates[off & (q > 0)] > 0) and np.all(rates[off & (q == 0)] == 0)
     np.testing.assert_allclose(rates.sum(axis=1), 0.0, atol=1e-12)
     assert _log_likelihood(counts, rates, lag) >= _log_likelihood(counts, clipped_rates, lag)
+
+
+def _steady(rates):
+    values, vectors = np.linalg.eig(rates.T)
+    pi = np.real(vectors[:, np.argmin(np.abs(values))])
+    return pi / pi.sum()
+
+
+@pytest.mark.parametrize("lag", [0.1, 1.0])
+def test_stationary_rates_recover_an_exact_transition_matrix(lag):
+    # Counts of a steady chain, pi_i exp(Q tau)_ij: their occupancy is the chain's steady
+    # state, so holding it costs nothing and the constrained rates are Q.
+    for seed in range(3):
+        q, edges = _random_ring(seed)
+        counts = 1e6 * _steady(q)[:, None] * scipy.linalg.expm(q * lag)
+        np.testing.assert_allclose(count_occupancy(counts), _steady(q), rtol=1e-12)
+        np.testing.assert_allclose(rates_by_likelihood(counts, lag, edges, stationary=True),
+                                   q, rtol=0, atol=1e-7 * np.abs(q).max())
+
+
+def _sampled_counts(seed, per_row=400):
+    # The same number of transitions counted from every cell (not the chain's steady share):
+    # the counts' occupancy is not the steady state of the rates of largest likelihood.
+    rng = np.random.default_rng(seed)
+    q, edges = _random_ring(seed)
+    lag = 0.5
+    exact = scipy.linalg.expm(q * lag)
+    counts = np.stack([rng.multinomial(per_row, row / row.sum()) for row in exact])
+    return counts.astype(float), edges, lag
+
+
+def test_stationary_network_holds_the_occupancy_and_is_the_constrained_optimum():
+    """Against a second formulation: scipy's trust-constr maximising the same likelihood over
+    the rates themselves, with ``occupancy @ Q = 0`` as explicit linear constraints, from the
+    unconstrained optimum (no reparametrisation, no row scaling)."""
+    from scipy.optimize import LinearConstraint, minimize
+
+    for seed in range(2):
+        counts, edges, lag = _sampled_counts(seed)
+        occupancy = count_occupancy(counts)
+        free = rates_by_likelihood(counts, lag, edges)
+        held = rates_by_likelihood(counts, lag, edges, stationary=True)
+        assert np.abs(_steady(free) - occupancy).max() > 1e-3  # the constraint binds
+        scale = occupancy @ np.abs(np.diag(held))
+        assert np.abs(occupancy @ held).max() / scale < 1e-10
+        np.testing.assert_allclose(held.sum(axis=1), 0.0, atol=1e-12)
+        assert _log_likelihood(counts, held, lag) <= _log_likelihood(counts, free, lag)
+
+        # (occupancy @ Q)_b = sum over edges (a, b) of occ_a q_ab - sum over (b, c) occ_b q_bc
+        balance = np.zeros((len(occupancy), len(edges)))
+        for e, (a, b) in enumerate(edges):
+            balance[b, e] += occupancy[a]
+            balance[a, e] -= occupancy[a]
+
+        def rates_of(x, edges=edges):
+            q = np.zeros((6, 6))
+            q[edges[:, 0], edges[:, 1]] = x
+            return q - np.diag(q.sum(axis=1))
+
+        def loss(x, counts=counts, lag=lag, rates_of=rates_of):
+            return -_log_likelihood(counts, rates_of(x), lag) / counts.sum()
+
+        best = minimize(loss, free[edges[:, 0], edges[:, 1]], method="trust-constr",
+                        bounds=[(1e-6, None)] * len(edges),
+                        # the balances sum to zero: one of them is left out.
+                        constraints=[LinearConstraint(balance[:-1], 0.0, 0.0)],
+                        options={"xtol": 1e-12, "gtol": 1e-12, "maxiter": 5000})
+        assert np.abs(balance @ best.x).max() < 1e-8
+        # held is at least as likely as the constrained optimum found the other way, and the
+        # same network (trust-constr stops at a tolerance of its own: rates to 1e-4 of the
+        # largest).
+        assert _log_likelihood(counts, held, lag) >= _log_likelihood(
+            counts, rates_of(best.x), lag) - 1e-9 * abs(_log_likelihood(counts, held, lag))
+        np.testing.assert_allclose(rates_of(best.x), held, rtol=0,
+                                   atol=1e-4 * np.abs(held).max())
+
+
+def test_stationary_estimator_refuses_an_empty_cell_and_gives_intervals():
+    counts, edges, lag = _sampled_counts(0)
+    empty = counts.copy()
+    empty[2] = empty[:, 2] = 0.0  # a cell no particle visits cannot be held
+    both = rates_by_likelihood(np.stack([counts, empty]), lag, edges, stationary=True)
+    np.testing.assert_array_equal(both[0], rates_by_likelihood(counts, lag, edges,
+                                                               stationary=True))
+    assert np.isnan(both[1]).all()
+    network, _, _ = _ring()
+    sequences = _tracked_sequences(network, 2000, seed=3)
+    learned = learn_network(sequences, N_CELLS, DT, 1, 100, n_bootstrap=20,
+                            estimator="stationary")
+    np.testing.assert_allclose(_steady(learned.rates), count_occupancy(learned.counts),
+                               rtol=1e-9)
+    assert np.isfinite(learned.lower).all() and learned.failed == 0
+    with pytest.raises(ValueError, match="estimator must be one of"):
+        learn_network(sequences, N_CELLS, DT, 1, 100, estimator="mle")
 
 
 def test_observed_edges_are_the_moves_from_frame_to_frame():
@@ -362,7 +457,7 @@ def test_markov_test_leaves_out_cells_no_particle_visits():
 def test_a_network_without_bootstrap_has_the_same_rates_and_no_interval():
     network, _, _ = _ring()
     sequences = _tracked_sequences(network, 2000, seed=3)
-    for estimator in ("logm", "likelihood"):
+    for estimator in ("logm", "likelihood", "stationary"):
         full = learn_network(sequences, N_CELLS, DT, 1, 100, n_bootstrap=20,
                              estimator=estimator)
         bare = learn_network(sequences, N_CELLS, DT, 1, 100, n_bootstrap=0,

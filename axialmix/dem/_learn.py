@@ -39,6 +39,7 @@ __all__ = [
     "block_count_matrices",
     "cell_length_limit",
     "count_matrix",
+    "count_occupancy",
     "equal_occupancy_sectors",
     "learn_network",
     "markov_test",
@@ -290,8 +291,77 @@ def _likelihood_program(n: int, edges: np.ndarray, lag_seconds: float):
     return jax.jit(jax.value_and_grad(negative_log_likelihood))
 
 
+def count_occupancy(counts: np.ndarray) -> np.ndarray:
+    """Share of the particles in each cell over the frames the counts cover: the mean of the
+    counts' start occupancy (row sums) and end occupancy (column sums), normalised to 1.
+
+    **Arguments:** `counts` ``(n, n)`` or a batch ``(m, n, n)``.
+
+    **Returns:** ``(n,)`` or ``(m, n)`` shares (dimensionless, summing to 1).
+    """
+    counts = np.asarray(counts, dtype=float)
+    held = counts.sum(axis=-1) + counts.sum(axis=-2)
+    return held / np.maximum(held.sum(axis=-1, keepdims=True), 1e-300)
+
+
+#: Largest violation of the steady-state condition ``pi Q = 0`` of the ``"stationary"``
+#: estimator, ``max_j |(pi Q)_j| / sum_i pi_i |Q_ii|``; a fit that misses it gives NaN rates.
+STATIONARY_TOLERANCE = 1e-8
+
+
+def _stationary_program(n: int, edges: np.ndarray, lag_seconds: float):
+    """``(theta, counts, occupancy) -> (negative log-likelihood per count, gradient)`` of
+    the network with the jump rates ``exp(theta)`` on `edges`, each cell's leaving rates
+    scaled so that `occupancy` is its steady state (jitted; JAX).
+
+    Scaling row i of a rate matrix by ``x_i > 0`` (a change of clock in cell i) keeps where a
+    particle goes next and changes the steady state from ``pi`` to ``pi_i / x_i``
+    (normalised): with ``x = pi(theta) / occupancy`` the network holds `occupancy`, and every
+    network that does is reached this way (its own rates give ``x = 1``), so maximising over
+    ``theta`` is the likelihood maximised subject to the steady state.
+    """
+    import jax
+    import jax.numpy as jnp
+
+    source, target = jnp.asarray(edges[:, 0]), jnp.asarray(edges[:, 1])
+    unit = jnp.zeros(n).at[n - 1].set(1.0)
+
+    def negative_log_likelihood(theta, counts, occupancy):
+        rates = jnp.zeros((n, n)).at[source, target].set(jnp.exp(theta))
+        generator = rates - jnp.diag(rates.sum(axis=1))
+        # pi Q = 0 with sum pi = 1: the last balance equation replaced by the normalisation.
+        system = generator.T.at[n - 1].set(1.0)
+        steady = jnp.linalg.solve(system, unit)
+        generator = (steady / occupancy)[:, None] * generator
+        transition = jax.scipy.linalg.expm(generator * lag_seconds)
+        log_p = jnp.log(jnp.clip(transition, 1e-300, None))
+        return -jnp.sum(counts * log_p) / jnp.maximum(jnp.sum(counts), 1.0)
+
+    return jax.jit(jax.value_and_grad(negative_log_likelihood))
+
+
+def _held_rates(rates: np.ndarray, occupancy: np.ndarray) -> np.ndarray | None:
+    """`rates` with row i scaled by ``pi_i / occupancy_i`` (``pi`` their steady state):
+    the network that holds `occupancy`; ``None`` where it misses it by more than
+    :data:`STATIONARY_TOLERANCE` (a network not connected both ways, or a failed solve)."""
+    n = rates.shape[0]
+    system = rates.T.copy()
+    system[n - 1] = 1.0
+    unit = np.zeros(n)
+    unit[-1] = 1.0
+    with np.errstate(all="ignore"):
+        steady = np.linalg.solve(system, unit)
+        held = (steady / occupancy)[:, None] * rates
+        scale = float(occupancy @ np.abs(np.diag(held)))
+        miss = float(np.abs(occupancy @ held).max()) / scale
+    if not (np.all(steady > 0) and np.isfinite(miss) and miss <= STATIONARY_TOLERANCE):
+        return None
+    return held
+
+
 def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarray,
-                        start: np.ndarray | None = None) -> np.ndarray:
+                        start: np.ndarray | None = None, *,
+                        stationary: bool = False) -> np.ndarray:
     """Rate matrix of largest likelihood of the transition counts, with rates on `edges` only.
 
     The network's transition matrix at the lag is ``P = expm(Q tau)``; the counts' log
@@ -302,13 +372,21 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
     carries a particle across several cells: the matrix logarithm then takes the wrong
     branch).
 
+    The row-by-row likelihood says nothing of where the particles are: the network's own
+    steady state (``pi Q = 0``) can differ from the occupancy the counts were taken in when
+    the motion is not Markov in these cells, and with it the network's long-time drift (on a
+    DEM section of lanes moving at different speeds, 7-12 % too fast). With `stationary`, the
+    likelihood is maximised subject to the network holding the counts' occupancy
+    (:func:`count_occupancy`) as its steady state, to :data:`STATIONARY_TOLERANCE`.
+
     **Arguments:** `counts` ``(n, n)`` or a batch ``(m, n, n)``; `lag_seconds` ``tau``, s;
     `edges` ``(k, 2)`` allowed ``(from, to)`` pairs (:func:`observed_edges`); `start` rate
     matrix (1/s) to start from (default: :func:`rates_from_counts`'s, or the first-order
     ``T_ij / tau`` where the counts' matrix has no logarithm, on the edges, each at least a
-    thousandth of their mean).
+    thousandth of their mean); `stationary` constrain the steady state to the occupancy.
 
-    **Returns:** ``Q`` of the shape of `counts`, 1/s (rows sum to zero).
+    **Returns:** ``Q`` of the shape of `counts`, 1/s (rows sum to zero); with `stationary`,
+    NaN for a count matrix whose constrained fit does not converge.
     """
     from scipy.optimize import minimize
 
@@ -317,7 +395,8 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
     counts = counts[None] if single else counts
     n = counts.shape[-1]
     edges = np.asarray(edges, dtype=int).reshape(-1, 2)
-    program = _likelihood_program(n, edges, float(lag_seconds))
+    program = None if stationary else _likelihood_program(n, edges, float(lag_seconds))
+    stationary_program = None
     out = np.zeros(counts.shape)
     for k, c in enumerate(counts):
         guess = rates_from_counts(c, lag_seconds)[0] if start is None else np.asarray(start)
@@ -328,8 +407,20 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
                            1e-6 / lag_seconds)
         theta0 = np.log(np.maximum(first, floor))
 
-        def objective(theta, c=c):
-            value, gradient = program(theta, c)
+        if stationary:
+            occupancy = count_occupancy(c)
+            if np.any(occupancy <= 0):
+                out[k] = np.nan  # a cell without particles cannot be held
+                continue
+            if stationary_program is None:
+                stationary_program = _stationary_program(n, edges, float(lag_seconds))
+            arguments = (c, occupancy)
+        else:
+            arguments = (c,)
+        chosen = stationary_program if stationary else program
+
+        def objective(theta, chosen=chosen, arguments=arguments):
+            value, gradient = chosen(theta, *arguments)
             return float(value), np.asarray(gradient, float)
 
         best = minimize(objective, theta0, jac=True, method="L-BFGS-B",
@@ -337,6 +428,11 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
         rates = np.zeros((n, n))
         rates[edges[:, 0], edges[:, 1]] = np.exp(best.x)
         rates[np.arange(n), np.arange(n)] = -rates.sum(axis=1)
+        if stationary:
+            rates = _held_rates(rates, occupancy)
+            if rates is None:
+                out[k] = np.nan
+                continue
         out[k] = rates
     return out[0] if single else out
 
@@ -490,6 +586,10 @@ class LearnedNetwork:
 FAILED_SHARE = 0.05
 
 
+#: The estimators of :func:`learn_network`.
+ESTIMATORS = ("logm", "likelihood", "stationary")
+
+
 def learn_network(
     sequences: np.ndarray,
     n_states: int,
@@ -520,16 +620,22 @@ def learn_network(
     - `estimator`: ``"logm"``, ``Q = log T / tau`` with negative rates clipped
       (:func:`rates_from_counts`), or ``"likelihood"``, the rates of largest likelihood on
       the connections seen from frame to frame (:func:`rates_by_likelihood`: a valid network
-      at any lag; each bootstrap replicate is refitted, starting from the whole run's rates).
+      at any lag; each bootstrap replicate is refitted, starting from the whole run's rates),
+      or ``"stationary"``, the same with the network's steady state held at the occupancy of
+      the counts (``stationary=True``: the steady state that weights the network's
+      long-time drift is then where the particles were in the counted frames, not one the
+      fit is free to choose; each replicate at its own occupancy).
 
     **Returns:** a :class:`LearnedNetwork` (`clipped` is 0 for the likelihood estimator;
     `failed` counts the replicates left out of the intervals).
 
     **Raises:** ``ValueError`` when, with ``"logm"``, the whole run's transition matrix has no
-    accurate logarithm (:data:`LOG_TOLERANCE`).
+    accurate logarithm (:data:`LOG_TOLERANCE`), or, with ``"stationary"``, when the whole
+    run's constrained fit does not converge (:data:`STATIONARY_TOLERANCE`).
     """
-    if estimator not in ("logm", "likelihood"):
-        raise ValueError(f"estimator must be 'logm' or 'likelihood', got {estimator!r}.")
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"estimator must be one of {', '.join(map(repr, ESTIMATORS))}, "
+                         f"got {estimator!r}.")
     sequences = np.asarray(sequences)
     if sequences.size and (sequences.min() < 0 or sequences.max() >= n_states):
         raise ValueError(f"cell indices must lie in 0..{n_states - 1}.")
@@ -556,8 +662,15 @@ def learn_network(
                       else np.zeros((0, n_states, n_states)))
     else:
         edges = observed_edges(sequences, n_states)
-        rates, clipped = rates_by_likelihood(total, tau, edges), 0.0
-        replicates = (rates_by_likelihood(resampled, tau, edges, start=rates) if n_bootstrap
+        stationary = estimator == "stationary"
+        rates, clipped = rates_by_likelihood(total, tau, edges, stationary=stationary), 0.0
+        if not np.isfinite(rates).all():
+            raise ValueError(
+                f"the fit of a network holding the occupancy of the counts as its steady "
+                f"state did not meet it to {STATIONARY_TOLERANCE:g} at lag {tau:g} s: use "
+                "estimator='likelihood'.")
+        replicates = (rates_by_likelihood(resampled, tau, edges, start=rates,
+                                          stationary=stationary) if n_bootstrap
                       else np.zeros((0, n_states, n_states)))
     usable = np.isfinite(replicates).all(axis=(1, 2))
     failed = int(n_bootstrap - usable.sum())

@@ -103,10 +103,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     learn.add_argument("--lag", type=_positive, default=0.1, help="lag, s (default 0.1)")
     learn.add_argument("--bootstrap", type=_count, default=200,
                        help="bootstrap replicates (default 200)")
-    learn.add_argument("--estimator", choices=("logm", "likelihood"), default="logm",
+    learn.add_argument("--estimator", choices=("logm", "likelihood", "stationary"),
+                       default="logm",
                        help="rates from the counts: the matrix logarithm with negative rates "
-                       "clipped (default), or the rates of largest likelihood on the "
-                       "connections seen from frame to frame (a valid network at any lag)")
+                       "clipped (default); the rates of largest likelihood on the "
+                       "connections seen from frame to frame (a valid network at any lag); "
+                       "or those with the occupancy held as the network's steady state")
     for name, helptext in (("hybrid", "hybrid run of the source's bladed mixer"),
                            ("validate", "hybrid against a full DEM run of the mixer")):
         sub = actions.add_parser(name, help=helptext)
