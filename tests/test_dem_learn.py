@@ -225,6 +225,10 @@ def test_stationary_estimator_refuses_an_empty_cell_and_gives_intervals():
     assert np.isfinite(learned.lower).all() and learned.failed == 0
     with pytest.raises(ValueError, match="estimator must be one of"):
         learn_network(sequences, N_CELLS, DT, 1, 100, estimator="mle")
+    # A cell no particle enters: said, not a network that cannot hold it.
+    with pytest.raises(ValueError, match=f"cell.s. {N_CELLS} hold no particle"):
+        learn_network(sequences, N_CELLS + 1, DT, 1, 100, n_bootstrap=0,
+                      estimator="stationary")
 
 
 def test_observed_edges_are_the_moves_from_frame_to_frame():

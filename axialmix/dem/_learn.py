@@ -665,10 +665,13 @@ def learn_network(
         stationary = estimator == "stationary"
         rates, clipped = rates_by_likelihood(total, tau, edges, stationary=stationary), 0.0
         if not np.isfinite(rates).all():
+            empty = np.flatnonzero(count_occupancy(total) <= 0)
+            why = (f"cell(s) {', '.join(str(i) for i in empty[:5])} hold no particle in the "
+                   "counted frames" if empty.size else
+                   f"the fit did not meet it to {STATIONARY_TOLERANCE:g} at lag {tau:g} s")
             raise ValueError(
-                f"the fit of a network holding the occupancy of the counts as its steady "
-                f"state did not meet it to {STATIONARY_TOLERANCE:g} at lag {tau:g} s: use "
-                "estimator='likelihood'.")
+                f"no network holds the occupancy of the counts as its steady state ({why}): "
+                "use estimator='likelihood'.")
         replicates = (rates_by_likelihood(resampled, tau, edges, start=rates,
                                           stationary=stationary) if n_bootstrap
                       else np.zeros((0, n_states, n_states)))
