@@ -375,7 +375,7 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
     The row-by-row likelihood says nothing of where the particles are: the network's own
     steady state (``pi Q = 0``) can differ from the occupancy the counts were taken in when
     the motion is not Markov in these cells, and with it the network's long-time drift (on a
-    DEM section of lanes moving at different speeds, 7-12 % too fast). With `stationary`, the
+    DEM section of lanes moving at different speeds, 6-12 % too fast). With `stationary`, the
     likelihood is maximised subject to the network holding the counts' occupancy
     (:func:`count_occupancy`) as its steady state, to :data:`STATIONARY_TOLERANCE`.
 
@@ -386,7 +386,8 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
     thousandth of their mean); `stationary` constrain the steady state to the occupancy.
 
     **Returns:** ``Q`` of the shape of `counts`, 1/s (rows sum to zero); with `stationary`,
-    NaN for a count matrix whose constrained fit does not converge.
+    NaN for a count matrix with a cell that holds no particle, or whose constrained fit
+    misses :data:`STATIONARY_TOLERANCE`.
     """
     from scipy.optimize import minimize
 
