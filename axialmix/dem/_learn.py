@@ -343,14 +343,9 @@ def _stationary_program(n: int, edges: np.ndarray, lag_seconds: float):
 def _held_rates(rates: np.ndarray, occupancy: np.ndarray) -> np.ndarray | None:
     """`rates` with row i scaled by ``pi_i / occupancy_i`` (``pi`` their steady state):
     the network that holds `occupancy`; ``None`` where it misses it by more than
-    :data:`STATIONARY_TOLERANCE` (a network not connected both ways, or a failed solve)."""
-    n = rates.shape[0]
-    system = rates.T.copy()
-    system[n - 1] = 1.0
-    unit = np.zeros(n)
-    unit[-1] = 1.0
+    :data:`STATIONARY_TOLERANCE` (a network not connected both ways)."""
     with np.errstate(all="ignore"):
-        steady = np.linalg.solve(system, unit)
+        steady = _stationary(rates)
         held = (steady / occupancy)[:, None] * rates
         scale = float(occupancy @ np.abs(np.diag(held)))
         miss = float(np.abs(occupancy @ held).max()) / scale
@@ -396,10 +391,17 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
     counts = counts[None] if single else counts
     n = counts.shape[-1]
     edges = np.asarray(edges, dtype=int).reshape(-1, 2)
-    program = None if stationary else _likelihood_program(n, edges, float(lag_seconds))
-    stationary_program = None
+    program = (_stationary_program if stationary else _likelihood_program)(
+        n, edges, float(lag_seconds))  # jitted: compiled at its first call
     out = np.zeros(counts.shape)
     for k, c in enumerate(counts):
+        arguments = (c,)
+        if stationary:
+            occupancy = count_occupancy(c)
+            if np.any(occupancy <= 0):
+                out[k] = np.nan  # a cell without particles cannot be held
+                continue
+            arguments = (c, occupancy)
         guess = rates_from_counts(c, lag_seconds)[0] if start is None else np.asarray(start)
         if not np.isfinite(guess).all():  # no matrix logarithm: first-order rates T_ij / tau
             guess = _transition(c) / lag_seconds
@@ -408,20 +410,8 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
                            1e-6 / lag_seconds)
         theta0 = np.log(np.maximum(first, floor))
 
-        if stationary:
-            occupancy = count_occupancy(c)
-            if np.any(occupancy <= 0):
-                out[k] = np.nan  # a cell without particles cannot be held
-                continue
-            if stationary_program is None:
-                stationary_program = _stationary_program(n, edges, float(lag_seconds))
-            arguments = (c, occupancy)
-        else:
-            arguments = (c,)
-        chosen = stationary_program if stationary else program
-
-        def objective(theta, chosen=chosen, arguments=arguments):
-            value, gradient = chosen(theta, *arguments)
+        def objective(theta, arguments=arguments):
+            value, gradient = program(theta, *arguments)
             return float(value), np.asarray(gradient, float)
 
         best = minimize(objective, theta0, jac=True, method="L-BFGS-B",
