@@ -30,6 +30,7 @@ def _axialmix(*args, cwd=None):
         (["learn", "--duration", "0.5"], "two impeller revolutions"),
         (["learn", "--run", "missing.npz"], "missing.npz: not a DEM run file"),
         (["learn", "--cells", "0"], "positive whole number"),
+        (["learn", "--bootstrap", "-1"], "whole number >= 0"),
         (["hybrid", "--dem-regions", "10"], "must be below --regions"),
         (["validate", "--particles", "1,x"], "counts per species"),
     ],
@@ -72,6 +73,20 @@ def test_learn_writes_a_network_that_axialmix_reads(tmp_path):
                        "--cells", "6", "--bootstrap", "50", "--out", str(again))
     assert result.returncode == 0, result.stderr
     assert CompartmentNetwork.from_json(again / "network.json") == network
+    # Too few replicates for an interval: the rates alone, and the output says why.
+    for replicates in ("0", "3"):
+        bare = tmp_path / f"bare{replicates}"
+        result = _axialmix("dem", "learn", "--run", str(out / "run.npz"), "--lag", "0.04",
+                           "--cells", "6", "--bootstrap", replicates, "--out", str(bare))
+        assert result.returncode == 0, result.stderr
+        assert (f"no 95 % intervals: {replicates} usable bootstrap replicate(s), at least 20 "
+                "needed") in result.stdout
+        assert CompartmentNetwork.from_json(bare / "network.json") == network
+        with open(bare / "rates.csv") as handle:
+            rows = list(csv.reader(handle))[1:]
+        assert rows and all(not np.isfinite(float(row[3] or "nan"))
+                            and not np.isfinite(float(row[4] or "nan")) for row in rows)
+        assert json.loads((bare / "learn.json").read_text())["network"]["v_95"] == [None, None]
     # The likelihood estimator: a network on the connections seen from frame to frame.
     likely = tmp_path / "likely"
     result = _axialmix("dem", "learn", "--run", str(out / "run.npz"), "--lag", "0.04",

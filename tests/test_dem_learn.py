@@ -415,6 +415,23 @@ def test_learning_refuses_a_run_without_a_rate_matrix_and_counts_failed_replicat
     assert np.isfinite(learned.lower).all()
 
 
+def test_too_few_replicates_give_the_rates_without_intervals():
+    """Below MIN_REPLICATES the percentile limits would be the extreme replicates' own
+    values: the rates (those of every bootstrap size) come without intervals."""
+    from axialmix.dem import MIN_REPLICATES
+
+    network, _, _ = _ring()
+    sequences = _tracked_sequences(network, 600, seed=2)
+    enough = learn_network(sequences, N_CELLS, DT, 1, 50, n_bootstrap=MIN_REPLICATES)
+    assert np.isfinite(enough.lower).all() and np.isfinite(enough.upper).all()
+    for replicates in (0, 2, MIN_REPLICATES - 1):
+        few = learn_network(sequences, N_CELLS, DT, 1, 50, n_bootstrap=replicates)
+        np.testing.assert_array_equal(few.rates, enough.rates)
+        assert few.replicates.shape[0] == replicates and few.failed == 0
+        assert np.isnan(few.lower).all() and np.isnan(few.upper).all()
+        assert all(np.isnan(interval).all() for interval in few.transport_interval())
+
+
 @pytest.mark.parametrize("failing", [5, 20])
 def test_replicates_without_rates_are_left_out_and_too_many_give_no_interval(monkeypatch,
                                                                             failing):

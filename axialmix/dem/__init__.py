@@ -31,6 +31,7 @@ from ._hybrid import (
     twin_tracer_counts,
 )
 from ._learn import (
+    MIN_REPLICATES,
     LearnedNetwork,
     MarkovTest,
     axial_cells,
@@ -70,6 +71,7 @@ __all__ = [
     "DEMRun",
     "DEMUnavailable",
     "LearnedNetwork",
+    "MIN_REPLICATES",
     "MarkovTest",
     "Material",
     "PaddleSection",

@@ -55,6 +55,16 @@ def _count(text: str) -> int:
     return value
 
 
+def _whole(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {value}")
+    return value
+
+
 def _particles(text: str) -> tuple[int, ...]:
     try:
         values = tuple(int(p) for p in text.split(","))
@@ -101,8 +111,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                        "recorded spheres (default 1; 4 tells the rising, resting and "
                        "falling parts of the bed apart)")
     learn.add_argument("--lag", type=_positive, default=0.1, help="lag, s (default 0.1)")
-    learn.add_argument("--bootstrap", type=_count, default=200,
-                       help="bootstrap replicates (default 200)")
+    learn.add_argument("--bootstrap", type=_whole, default=200,
+                       help="bootstrap replicates (default 200; the 95 %% intervals need at "
+                       "least 20, and 0 gives the rates alone)")
     learn.add_argument("--estimator", choices=("logm", "likelihood", "stationary"),
                        default="logm",
                        help="rates from the counts: the matrix logarithm with negative rates "
@@ -152,6 +163,7 @@ def _check_out(path: str) -> Path:
 def _learn(args, out: Path) -> int:
     from axialmix._files import write_csv, write_json
     from axialmix.dem import (
+        MIN_REPLICATES,
         BladedMixer,
         DEMRun,
         PaddleSection,
@@ -249,9 +261,17 @@ def _learn(args, out: Path) -> int:
     print(f"DEM ({run.n_particles} spheres, {run.times[-1]:.2f} s): "
           f"v = {transport.velocity * 1e3:.2f} mm/s, "
           f"D_z = {transport.dispersion * 1e6:.1f} mm²/s, Pe = {transport.peclet:.1f}")
-    print(f"network ({n} cells of {width * 1e3:.1f} mm, lag {learned.lag_seconds:g} s): "
-          f"v = {v * 1e3:.2f} mm/s [{vlo * 1e3:.2f}, {vhi * 1e3:.2f}], D_z = {d * 1e6:.1f} "
-          f"mm²/s [{dlo * 1e6:.1f}, {dhi * 1e6:.1f}]")
+    if all(math.isfinite(x) for x in (vlo, vhi, dlo, dhi)):
+        print(f"network ({n} cells of {width * 1e3:.1f} mm, lag {learned.lag_seconds:g} s): "
+              f"v = {v * 1e3:.2f} mm/s [{vlo * 1e3:.2f}, {vhi * 1e3:.2f}], D_z = {d * 1e6:.1f} "
+              f"mm²/s [{dlo * 1e6:.1f}, {dhi * 1e6:.1f}]")
+    else:
+        usable = args.bootstrap - learned.failed
+        why = (f"{usable} usable bootstrap replicate(s), at least {MIN_REPLICATES} needed"
+               if usable < MIN_REPLICATES else
+               f"{learned.failed} of {args.bootstrap} bootstrap replicates have no rates")
+        print(f"network ({n} cells of {width * 1e3:.1f} mm, lag {learned.lag_seconds:g} s): "
+              f"v = {v * 1e3:.2f} mm/s, D_z = {d * 1e6:.1f} mm²/s (no 95 % intervals: {why})")
     print(f"cell length rule: cells <= {record['cell_length_limit_m'] * 1e3:.1f} mm "
           f"(these are {width * 1e3:.1f} mm)")
     print(test.report())
