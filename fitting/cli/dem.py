@@ -45,16 +45,6 @@ def _positive(text: str) -> float:
     return value
 
 
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive whole number, got {value}")
-    return value
-
-
 def _whole(text: str) -> int:
     try:
         value = int(text)
@@ -62,6 +52,13 @@ def _whole(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {value}")
+    return value
+
+
+def _count(text: str) -> int:
+    value = _whole(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive whole number, got {value}")
     return value
 
 
@@ -266,7 +263,7 @@ def _learn(args, out: Path) -> int:
               f"v = {v * 1e3:.2f} mm/s [{vlo * 1e3:.2f}, {vhi * 1e3:.2f}], D_z = {d * 1e6:.1f} "
               f"mm²/s [{dlo * 1e6:.1f}, {dhi * 1e6:.1f}]")
     else:
-        usable = args.bootstrap - learned.failed
+        usable = learned.replicates.shape[0]
         why = (f"{usable} usable bootstrap replicate(s), at least {MIN_REPLICATES} needed"
                if usable < MIN_REPLICATES else
                f"{learned.failed} of {args.bootstrap} bootstrap replicates have no rates")
