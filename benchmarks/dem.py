@@ -26,7 +26,9 @@ same section (other seeds; every pair of runs), floors that hold what the whole 
         --estimator likelihood --layouts 24x1,24x1x4,48x1x4 --lags 0.5,1.0 --bootstrap 0
 
 With ``--every-run`` each run is the section in turn and the errors over the floors of
-independent runs are pooled over the runs.
+independent runs are pooled over the runs. With ``--pool`` each network is learned on the
+first halves of all the runs together (the section's and the others'), and still judged on
+the section's second half, which no network has seen.
 
 Layouts are axial layers x equal-area rings, or axial x rings x angular sectors (AxRxS; the
 sectors hold equal shares of the spheres of the learning window, and the independent runs use
@@ -61,9 +63,10 @@ N_REGIONS = 10
 def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
             delays_s: tuple[float, ...] = (1.0, 2.0, 4.0), estimator: str = "logm",
             layouts: tuple[tuple[int, ...], ...] = ((12, 1), (24, 1), (24, 1, 4), (48, 1, 4)),
-            others: tuple[str, ...] = (), bootstrap: int = 200) -> dict:
+            others: tuple[str, ...] = (), bootstrap: int = 200, pool: bool = False) -> dict:
     """Print the section's table; returns ``{(layout, lag_s): (error, floor of runs)}``
-    (mean tracer fractions; the floor NaN without `others`)."""
+    (mean tracer fractions; the floor NaN without `others`). With `pool`, each network is
+    learned on the first halves of this run and of the `others` together."""
     from axialmix.dem import (
         DEMRun,
         cell_length_limit,
@@ -99,6 +102,7 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
           "  CK err/noise  tracer err/floor: one start, phase-averaged (err/floor), own chain, "
           "DEM itself | err over the floor of two windows, of independent runs")
     print(f"networks estimated by {estimator}"
+          + (", each learned on the first halves of every run together" if pool else "")
           + (f"; independent runs of the section: {', '.join(others)}" if others else ""))
     found = {}
     for layout in layouts:
@@ -115,8 +119,11 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
             lag = max(1, round(lag_s / dt))
             label = (f"{'x'.join(str(k) for k in (n_cells, n_radial, n_sectors)[:len(layout)])}"
                      f" ({g.length / n_cells * 1e3:.0f} mm)")
+            # The learning window: this run's first half, or with `pool` the first halves of
+            # every run (the second halves, where the tracer is judged, are never seen).
+            learning = [cells[:half]] + ([c[:half] for c in cells_others] if pool else [])
             try:
-                learned = learn_network(cells[:half], n, dt, lag, round(g.revolution_time / dt),
+                learned = learn_network(learning, n, dt, lag, round(g.revolution_time / dt),
                                         centres=centres, period=g.length, estimator=estimator,
                                         n_bootstrap=bootstrap)
             except ValueError as refusal:  # no rate matrix gives T at this lag
@@ -220,6 +227,9 @@ def main() -> None:
     parser.add_argument("--layouts", default="12x1,24x1,24x1x4,48x1x4",
                         help="with --section: cells as AxR or AxRxS: axial layers x equal-area "
                              "rings x angular sectors of equal occupancy (comma-separated)")
+    parser.add_argument("--pool", action="store_true",
+                        help="with --section and --others: learn each network on the first "
+                             "halves of all the runs together (their second halves unseen)")
     parser.add_argument("--every-run", action="store_true",
                         help="with --section and --others: each run in turn is the section "
                              "(learned on its first half, judged on its second against the "
@@ -230,10 +240,11 @@ def main() -> None:
                    tuple(float(x) for x in args.delays.split(",")), args.estimator,
                    tuple(tuple(int(v) for v in x.split("x")) for x in args.layouts.split(",")))
         runs = [args.section] + [x for x in args.others.split(",") if x]
-        if args.every_run and len(runs) < 2:
-            raise SystemExit("--every-run needs --others")
+        if (args.every_run or args.pool) and len(runs) < 2:
+            raise SystemExit("--every-run and --pool need --others")
         rounds = range(len(runs)) if args.every_run else range(1)
-        found = [section(runs[i], *options, tuple(runs[:i] + runs[i + 1:]), args.bootstrap)
+        found = [section(runs[i], *options, tuple(runs[:i] + runs[i + 1:]), args.bootstrap,
+                         args.pool)
                  for i in rounds]
         if args.every_run:
             # Each run learned on its first half and judged on its second against the floor

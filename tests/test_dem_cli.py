@@ -1,6 +1,7 @@
 """``axialmix dem`` through the command line: files written, networks readable, one-line errors."""
 
 import csv
+import dataclasses
 import json
 import subprocess
 import sys
@@ -132,6 +133,31 @@ def test_learn_writes_a_network_that_axialmix_reads(tmp_path):
     assert edges[2] == pytest.approx(np.pi)
     split = CompartmentNetwork.from_json(sectors / "network.json")
     assert split.compartments[:3] == ("z1s1", "z1s2", "z2s1")
+    # Several runs learned as one network. The same run given twice doubles every count,
+    # which leaves the likelihood's maximum where it was: the network of the run alone.
+    twice = tmp_path / "twice"
+    result = _axialmix("dem", "learn", "--run", str(out / "run.npz"), "--run",
+                       str(out / "run.npz"), "--lag", "0.04", "--cells", "6", "--bootstrap",
+                       "20", "--estimator", "likelihood", "--out", str(twice))
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.count(f"DEM {out / 'run.npz'} (300 spheres") == 2
+    record = json.loads((twice / "learn.json").read_text())
+    assert record["runs"] == [str(out / "run.npz")] * 2
+    assert record["network"]["blocks"] == 2 * json.loads(
+        (likely / "learn.json").read_text())["network"]["blocks"]
+    again = CompartmentNetwork.from_json(twice / "network.json")
+    for mine, alone in zip(again.connections, learned.connections, strict=True):
+        assert (mine.source, mine.target) == (alone.source, alone.target)
+        assert mine.rate == pytest.approx(alone.rate, rel=1e-6)
+    # A run of another frame interval is refused in one line naming it.
+    other = tmp_path / "other.npz"
+    dataclasses.replace(run, times=run.times * 2).save(other)
+    result = _axialmix("dem", "learn", "--run", str(out / "run.npz"), "--run", str(other),
+                       "--out", str(tmp_path / "refused"), cwd=tmp_path)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"{other}: not a run of the geometry and frame interval" \
+        in lines[0]
 
 
 @pytest.mark.skipif(not dem_available(), reason="the dem extra is not installed")

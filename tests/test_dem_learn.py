@@ -298,6 +298,11 @@ def test_markov_test_of_a_markov_chain_is_flat():
                                test.timescales.shape), rtol=0.1)
     assert np.all(test.ck_error < 4 * test.ck_sampling + 1e-3)
     assert "Chapman-Kolmogorov" in test.report()
+    # The spheres given as two runs of the same frames: the same counts, the same test.
+    split = markov_test([sequences[:, :50], sequences[:, 50:]], N_CELLS, DT, (1, 2, 4, 8),
+                        ck_steps=(2, 4))
+    np.testing.assert_allclose(split.timescales, test.timescales, rtol=1e-10)
+    np.testing.assert_allclose(split.ck_error, test.ck_error, rtol=1e-10, atol=1e-15)
 
 
 def test_axial_cells_and_cell_length_rule():
@@ -593,3 +598,51 @@ def test_angular_sectors_and_equal_occupancy_edges():
         axial_cells(z, 0.1, 2, sector_edges=edges)
     with pytest.raises(ValueError, match="distinct sectors"):
         equal_occupancy_sectors(np.zeros(10), 3)
+
+
+def test_several_runs_learn_the_network_of_their_summed_counts():
+    """Runs of the same cells given as a list: one network of their counts together.
+
+    Invariant: the particles of one run split into two "runs" of the same frames count
+    exactly the transitions of the whole run, so every estimator must give the whole run's
+    network; two independent runs give the network of their summed counts (checked against
+    the estimators called on those counts directly), and their bootstrap draws from the
+    blocks of both.
+    """
+    network, _, _ = _ring()
+    one = _tracked_sequences(network, 2000, seed=3, tracked=40)
+    other = _tracked_sequences(network, 1500, seed=4, tracked=30)
+    for estimator in ("logm", "likelihood", "stationary"):
+        whole = learn_network(one, N_CELLS, DT, 2, 100, n_bootstrap=0, estimator=estimator)
+        split = learn_network([one[:, :25], one[:, 25:]], N_CELLS, DT, 2, 100, n_bootstrap=0,
+                              estimator=estimator)
+        np.testing.assert_allclose(split.rates, whole.rates, rtol=1e-10, atol=1e-12)
+        # Holdups are per run (the mean over every run's frames): two runs that share the
+        # frames and split the spheres hold, on average, half of what the one run holds.
+        np.testing.assert_allclose(split.holdups, whole.holdups / 2, rtol=1e-12)
+        assert split.blocks == 2 * whole.blocks
+    counts = count_matrix(one, N_CELLS, 2) + count_matrix(other, N_CELLS, 2)
+    np.testing.assert_array_equal(count_matrix([one, other], N_CELLS, 2), counts)
+    edges = observed_edges([one, other], N_CELLS)
+    union = {tuple(e) for e in observed_edges(one, N_CELLS)} | {
+        tuple(e) for e in observed_edges(other, N_CELLS)}
+    assert {tuple(e) for e in edges} == union and len(edges) == len(union)
+    # The network sees the transitions its bootstrap blocks cover: whole blocks of each run
+    # (blocks never straddle two runs), 19 of run one's 1999 starts and 14 of the other's.
+    blocks = block_count_matrices([one, other], N_CELLS, 2, 100)
+    assert blocks.shape[0] == 19 + 14
+    np.testing.assert_array_equal(blocks[:19], block_count_matrices(one, N_CELLS, 2, 100))
+    np.testing.assert_array_equal(blocks[19:], block_count_matrices(other, N_CELLS, 2, 100))
+    covered = blocks.sum(axis=0)
+    both = learn_network([one, other], N_CELLS, DT, 2, 100, n_bootstrap=40,
+                         estimator="likelihood")
+    np.testing.assert_array_equal(both.counts, covered)
+    np.testing.assert_allclose(both.rates, rates_by_likelihood(covered, 2 * DT, edges),
+                               rtol=1e-10, atol=1e-12)
+    assert both.blocks == 33 and np.isfinite(both.lower).all()
+    logm = learn_network((one, other), N_CELLS, DT, 2, 100, n_bootstrap=0)
+    np.testing.assert_allclose(logm.rates, rates_from_counts(covered, 2 * DT)[0], rtol=1e-12)
+    with pytest.raises(ValueError, match=r"\(run 2 of 2\)"):
+        learn_network([one, other[:, 0]], N_CELLS, DT, 2, 100)
+    with pytest.raises(ValueError, match="no cell sequences"):
+        learn_network([], N_CELLS, DT, 2, 100)

@@ -147,18 +147,36 @@ def equal_occupancy_sectors(angle: np.ndarray, n_sectors: int) -> np.ndarray:
     return edges
 
 
+def _runs(sequences) -> list[np.ndarray]:
+    """The recorded runs in `sequences`: one ``(frames, particles)`` array of cell indices,
+    or a list or tuple of such arrays (several runs, or windows, of the same cells; their
+    frame and particle counts may differ)."""
+    parts = [sequences]
+    if isinstance(sequences, (list, tuple)):
+        if not sequences:
+            raise ValueError("no cell sequences given.")
+        # Arrays in a list are runs; a nested list of whole numbers is one array.
+        if any(isinstance(part, np.ndarray) or np.ndim(part) == 2 for part in sequences):
+            parts = list(sequences)
+    runs = [np.asarray(part) for part in parts]
+    for k, run in enumerate(runs):
+        if run.ndim != 2:
+            where = f" (run {k + 1} of {len(runs)})" if len(runs) > 1 else ""
+            raise ValueError(f"cell sequences must be a (frames, particles) array{where}.")
+    return runs
+
+
 def _as_sequences(sequences) -> list[np.ndarray]:
-    array = np.asarray(sequences)
-    if array.ndim != 2:
-        raise ValueError("cell sequences must be a (frames, particles) array.")
-    return [np.ascontiguousarray(array[:, i], dtype=np.int32) for i in range(array.shape[1])]
+    return [np.ascontiguousarray(run[:, i], dtype=np.int32)
+            for run in _runs(sequences) for i in range(run.shape[1])]
 
 
 def count_matrix(sequences: np.ndarray, n_states: int, lag: int) -> np.ndarray:
     """Transition counts ``C_ij`` between frames `lag` apart (sliding window), with deeptime.
 
-    **Arguments:** `sequences` ``(frames, particles)`` cell indices; `n_states` cells; `lag`
-    in frames (at least 1).
+    **Arguments:** `sequences` ``(frames, particles)`` cell indices, or a list of such arrays
+    (several runs of the same cells: their counts add); `n_states` cells; `lag` in frames (at
+    least 1).
 
     **Returns:** ``(n_states, n_states)`` float array of counts (row: from, column: to).
     """
@@ -166,7 +184,7 @@ def count_matrix(sequences: np.ndarray, n_states: int, lag: int) -> np.ndarray:
 
     if int(lag) != lag or lag < 1:
         raise ValueError(f"lag must be a positive whole number of frames, got {lag}.")
-    frames = np.asarray(sequences).shape[0]
+    frames = min(run.shape[0] for run in _runs(sequences))
     if frames <= lag:
         raise ValueError(f"a lag of {lag} frames needs more than {lag} frames, got {frames}.")
     estimator = TransitionCountEstimator(int(lag), "sliding", n_states=int(n_states))
@@ -182,11 +200,16 @@ def block_count_matrices(
     Block b holds the transitions starting at frames ``b * block_frames`` to
     ``(b + 1) * block_frames - 1``; summed over blocks they give :func:`count_matrix` of the
     frames the blocks cover. Counted with NumPy in one pass (deeptime's estimator costs a
-    call per block, 50 times slower here); the tests check the sum against deeptime.
+    call per block, 50 times slower here); the tests check the sum against deeptime. A list of
+    runs of the same cells gives the blocks of each run in turn (each run at least 2 blocks).
 
     **Returns:** ``(blocks, n_states, n_states)`` float array.
     """
-    sequences = np.asarray(sequences, dtype=np.int64)
+    runs = _runs(sequences)
+    if len(runs) > 1:
+        return np.concatenate([block_count_matrices(run, n_states, lag, block_frames)
+                               for run in runs])
+    sequences = np.asarray(runs[0], dtype=np.int64)
     starts = sequences.shape[0] - lag
     n_blocks = starts // int(block_frames)
     if n_blocks < 2:
@@ -265,6 +288,8 @@ def observed_edges(sequences: np.ndarray, n_states: int) -> np.ndarray:
     """The connections a network of these cells can have: pairs ``(i, j)``, ``i != j``, seen
     as consecutive cells of one particle from one frame to the next (neighbours in space:
     between two frames a particle crosses into an adjacent cell, not across the vessel).
+    `sequences`: ``(frames, particles)`` cell indices, or a list of such arrays (the
+    connections seen in any of them).
 
     **Returns:** ``(m, 2)`` integer array of ``(from, to)`` cells.
     """
@@ -606,7 +631,11 @@ def learn_network(
 
     **Arguments:**
 
-    - `sequences`: ``(frames, particles)`` cell indices (0 to ``n_states - 1``).
+    - `sequences`: ``(frames, particles)`` cell indices (0 to ``n_states - 1``), or a list
+      of such arrays: several runs (or windows) of the same cells, learned as one network
+      (their counts add; the bootstrap draws from the blocks of every run; each run must
+      hold at least two blocks). Several independent runs average out the slow fluctuations
+      that one run's window shares (a drift that wanders by a tenth over seconds).
     - `n_states`: number of cells.
     - `frame_interval`: time between frames, s.
     - `lag`: lag in frames; ``tau = lag * frame_interval``.
@@ -634,11 +663,11 @@ def learn_network(
     if estimator not in ESTIMATORS:
         raise ValueError(f"estimator must be one of {', '.join(map(repr, ESTIMATORS))}, "
                          f"got {estimator!r}.")
-    sequences = np.asarray(sequences)
-    if sequences.size and (sequences.min() < 0 or sequences.max() >= n_states):
+    runs = _runs(sequences)
+    if any(run.size and (run.min() < 0 or run.max() >= n_states) for run in runs):
         raise ValueError(f"cell indices must lie in 0..{n_states - 1}.")
     tau = lag * float(frame_interval)
-    blocks = block_count_matrices(sequences, n_states, lag, block_frames)
+    blocks = block_count_matrices(runs, n_states, lag, block_frames)
     total = blocks.sum(axis=0)
     rng = np.random.default_rng(seed)
     if int(n_bootstrap) != n_bootstrap or n_bootstrap < 0:
@@ -659,7 +688,7 @@ def learn_network(
         replicates = (rates_from_counts(resampled, tau)[0] if n_bootstrap
                       else np.zeros((0, n_states, n_states)))
     else:
-        edges = observed_edges(sequences, n_states)
+        edges = observed_edges(runs, n_states)
         stationary = estimator == "stationary"
         rates, clipped = rates_by_likelihood(total, tau, edges, stationary=stationary), 0.0
         if not np.isfinite(rates).all():
@@ -680,7 +709,8 @@ def learn_network(
         lower = upper = np.full(rates.shape, np.nan)
     else:
         lower, upper = np.percentile(replicates, [2.5, 97.5], axis=0)
-    holdups = np.bincount(sequences.ravel(), minlength=n_states) / sequences.shape[0]
+    holdups = (sum(np.bincount(run.ravel(), minlength=n_states) for run in runs)
+               / sum(run.shape[0] for run in runs))
     return LearnedNetwork(
         names=tuple(names) if names is not None else tuple(f"C{i + 1}" for i in range(n_states)),
         rates=rates, lower=lower, upper=upper, replicates=replicates, counts=total,
@@ -741,7 +771,8 @@ def markov_test(
 
     **Arguments:**
 
-    - `sequences`, `n_states`, `frame_interval`: as :func:`learn_network`.
+    - `sequences`, `n_states`, `frame_interval`: as :func:`learn_network` (one run, or a
+      list of runs of the same cells, tested together).
     - `lags`: lags in frames for the implied time scales.
     - `base_lag`: the lag the CK test propagates (default the first of `lags`).
     - `ck_steps`: multiples of the base lag compared.
@@ -755,7 +786,7 @@ def markov_test(
     """
     from deeptime.markov.msm import MarkovStateModel
 
-    sequences = np.asarray(sequences)
+    sequences = _runs(sequences)
     scales = []
     for lag in lags:
         counts = count_matrix(sequences, n_states, lag)
@@ -771,13 +802,15 @@ def markov_test(
     counts = count_matrix(sequences, n_states, base)
     keep = np.ix_(*(2 * (_largest_connected_set(counts),)))
     t_base = _transition(counts[keep])
-    half = sequences.shape[1] // 2
+    # The sampling noise from two halves of the spheres (of every run).
+    first = [run[:, :run.shape[1] // 2] for run in sequences]
+    second = [run[:, run.shape[1] // 2:] for run in sequences]
     errors, noise = [], []
     for k in ck_steps:
         direct = _transition(count_matrix(sequences, n_states, base * k)[keep])
         errors.append(np.abs(np.linalg.matrix_power(t_base, k) - direct).max())
-        a = _transition(count_matrix(sequences[:, :half], n_states, base * k)[keep])
-        b = _transition(count_matrix(sequences[:, half:], n_states, base * k)[keep])
+        a = _transition(count_matrix(first, n_states, base * k)[keep])
+        b = _transition(count_matrix(second, n_states, base * k)[keep])
         noise.append(np.abs(a - b).max() / 2)  # each half is sqrt(2) noisier than the whole
     return MarkovTest(
         lags_seconds=np.asarray(lags, float) * frame_interval,

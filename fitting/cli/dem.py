@@ -2,7 +2,8 @@
 
 Sub-commands, each writing fixed file names into ``--out DIR``:
 
-* ``axialmix dem learn``: run a DEM section (or read a run saved before, ``--run``), learn
+* ``axialmix dem learn``: run a DEM section (or read runs saved before, ``--run``, given once
+  per run: several runs of one section are learned as one network), learn
   the network of its cells: ``network.json`` (a network file :mod:`axialmix.network` and
   ``axialmix simulate network`` read),
   ``rates.csv`` (every connection's rate and 95 % bootstrap interval), ``learn.json`` (the
@@ -94,8 +95,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     learn = actions.add_parser("learn", help="learn a network from a DEM section")
     _common(learn, 4.0)
-    learn.add_argument("--run", metavar="FILE", default=None,
-                       help="a run.npz written before, instead of running DEM")
+    learn.add_argument("--run", metavar="FILE", default=None, action="append",
+                       help="a run.npz written before, instead of running DEM; give it again "
+                       "for more runs of the same section (other seeds), learned as one "
+                       "network")
     learn.add_argument("--geometry", choices=("section", "mixer"), default="section",
                        help="periodic paddle section (default) or the source's bladed mixer")
     learn.add_argument("--particles", type=_particles, default=None,
@@ -158,6 +161,8 @@ def _check_out(path: str) -> Path:
 
 
 def _learn(args, out: Path) -> int:
+    import numpy as np
+
     from axialmix._files import write_csv, write_json
     from axialmix.dem import (
         MIN_REPLICATES,
@@ -173,11 +178,17 @@ def _learn(args, out: Path) -> int:
         run_dem,
     )
 
+    more = []  # further runs of the same section, learned with the first
     if args.run is not None:
         try:
-            run = DEMRun.load(args.run)
+            run, *more = (DEMRun.load(path) for path in args.run)
         except (ValueError, FileNotFoundError) as error:
             raise _BadInput(str(error)) from None
+        for path, other in zip(args.run[1:], more, strict=True):
+            if (other.geometry != run.geometry
+                    or not np.isclose(other.frame_interval, run.frame_interval)):
+                raise _BadInput(f"{path}: not a run of the geometry and frame interval of "
+                                f"{args.run[0]}")
         ran = False
     else:
         kind = PaddleSection if args.geometry == "section" else BladedMixer
@@ -203,15 +214,21 @@ def _learn(args, out: Path) -> int:
     g = run.geometry
     lag = max(1, round(args.lag / run.frame_interval))
     block = max(1, round(g.revolution_time / run.frame_interval))
-    if run.n_frames - lag < 2 * block:
-        raise _BadInput(f"the run has {run.n_frames} frames; two revolutions of "
-                        f"{block} frames beyond the lag are needed (a longer --duration)"
-                        + kept)
+    for k, each in enumerate([run, *more]):
+        if each.n_frames - lag < 2 * block:
+            name = f"{args.run[k]}: " if more else ""
+            raise _BadInput(f"{name}the run has {each.n_frames} frames; two revolutions of "
+                            f"{block} frames beyond the lag are needed (a longer --duration)"
+                            + kept)
     try:
         layout = cells_of_run(run, args.cells, n_radial=args.radial, n_sectors=args.sectors)
     except ValueError as error:
         raise _BadInput(f"{error}{kept}") from None
     cells, n, names, centres = layout.cells, layout.n_cells, layout.names, layout.centres
+    # Further runs in the first run's cells (its sector edges); learned as one network.
+    cells = [cells] + [cells_of_run(other, args.cells, n_radial=args.radial,
+                                    sector_edges=layout.sector_edges).cells
+                       for other in more]
     width = g.length / args.cells
     try:
         learned = learn_network(cells, n, run.frame_interval, lag, block,
@@ -220,7 +237,8 @@ def _learn(args, out: Path) -> int:
                                 estimator=args.estimator)
     except ValueError as error:
         raise _BadInput(f"{error}{kept}") from None
-    transport = dem_transport(run)
+    interrupted = run.interrupted or any(each.interrupted for each in more)
+    transport, *transport_more = (dem_transport(each) for each in [run, *more])
     v, d = learned.transport()
     (vlo, vhi), (dlo, dhi) = learned.transport_interval()
     test = markov_test(cells, n, run.frame_interval,
@@ -252,12 +270,20 @@ def _learn(args, out: Path) -> int:
         "markov": {"lags_s": test.lags_seconds.tolist(), "timescales_s": test.timescales.tolist(),
                    "ck_steps": test.ck_steps.tolist(), "ck_error": test.ck_error.tolist(),
                    "ck_sampling": test.ck_sampling.tolist()},
-        "interrupted": run.interrupted,
+        "interrupted": interrupted,
     }
+    if more:
+        record["runs"] = list(args.run)
+        record["dem_further_runs"] = [
+            {"run": path, "particles": each.n_particles, "frames": each.n_frames,
+             "v_m_per_s": t.velocity, "D_z_m2_per_s": t.dispersion, "Pe": t.peclet}
+            for path, each, t in zip(args.run[1:], more, transport_more, strict=True)]
     write_json(out / "learn.json", _plain(record))
-    print(f"DEM ({run.n_particles} spheres, {run.times[-1]:.2f} s): "
-          f"v = {transport.velocity * 1e3:.2f} mm/s, "
-          f"D_z = {transport.dispersion * 1e6:.1f} mm²/s, Pe = {transport.peclet:.1f}")
+    for k, (each, t) in enumerate(zip([run, *more], [transport, *transport_more],
+                                      strict=True)):
+        print(f"DEM{f' {args.run[k]}' if more else ''} ({each.n_particles} spheres, "
+              f"{each.times[-1]:.2f} s): v = {t.velocity * 1e3:.2f} mm/s, "
+              f"D_z = {t.dispersion * 1e6:.1f} mm²/s, Pe = {t.peclet:.1f}")
     if all(math.isfinite(x) for x in (vlo, vhi, dlo, dhi)):
         print(f"network ({n} cells of {width * 1e3:.1f} mm, lag {learned.lag_seconds:g} s): "
               f"v = {v * 1e3:.2f} mm/s [{vlo * 1e3:.2f}, {vhi * 1e3:.2f}], D_z = {d * 1e6:.1f} "
@@ -273,7 +299,7 @@ def _learn(args, out: Path) -> int:
           f"(these are {width * 1e3:.1f} mm)")
     print(test.report())
     print(f"results written to {out}")
-    return 130 if run.interrupted else 0
+    return 130 if interrupted else 0
 
 
 def _mixer_runs(args, out: Path, validate: bool) -> int:
