@@ -64,14 +64,16 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
             delays_s: tuple[float, ...] = (1.0, 2.0, 4.0), estimator: str = "logm",
             layouts: tuple[tuple[int, ...], ...] = ((12, 1), (24, 1), (24, 1, 4), (48, 1, 4)),
             others: tuple[str, ...] = (), bootstrap: int = 200, pool: bool = False) -> dict:
-    """Print the section's table; returns ``{(layout, lag_s): (error, floor of runs)}``
-    (mean tracer fractions; the floor NaN without `others`). With `pool`, each network is
-    learned on the first halves of this run and of the `others` together."""
+    """Print the section's table; returns ``{(layout, lag_s): (error, floor of runs, error of
+    the others' mean tracer)}`` (mean tracer fractions; the last two NaN without `others`).
+    With `pool`, each network is learned on the first halves of this run and of the `others`
+    together."""
     from axialmix.dem import (
         DEMRun,
         cell_length_limit,
         cells_of_run,
         dem_transport,
+        independent_mean_error,
         markov_test,
         repeat_floor,
         tracer_spreading,
@@ -166,9 +168,12 @@ def section(path: str, lags: tuple[float, ...] = (0.05, 0.25, 0.5, 1.0),
                          for c in cells_others]
                 floor_runs = float(repeat_floor(spread, *twins).mean())
                 by_runs = f"{spread.error.mean() / floor_runs:6.2f}"
+                # No network: the mean tracer of the independent runs as the prediction.
+                others_mean = float(independent_mean_error(spread, *twins).mean())
             else:
-                floor_runs, by_runs = float("nan"), "     -"
-            found[(tuple(layout), lag * dt)] = (float(spread.error.mean()), floor_runs)
+                floor_runs, by_runs, others_mean = float("nan"), "     -", float("nan")
+            found[(tuple(layout), lag * dt)] = (float(spread.error.mean()), floor_runs,
+                                                others_mean)
             print(f"{label:12s} {lag * dt:6.2f}  {v * 1e3:7.2f} [{vlo * 1e3:6.2f},{vhi * 1e3:6.2f}]"
                   f"   {d * 1e6:7.1f} [{dlo * 1e6:6.1f},{dhi * 1e6:6.1f}]   {learned.clipped:5.2f}"
                   f"   {ck:6.2f}     {one.ratio:5.2f}      {spread.ratio:5.2f} "
@@ -257,6 +262,19 @@ def main() -> None:
                           / np.mean([f[key][1] for f in found if key in f]))
                 print(f"{'x'.join(map(str, key[0])):10s} lag {key[1]:5.2f} s: "
                       + " ".join(f"{x:5.2f}" for x in per_run) + f"   pooled {pooled:5.2f}")
+            # The same tracers predicted by no network: the mean of the other runs' tracers
+            # (the best data from other runs give; sqrt(1 + 1/m) times an exact prediction's
+            # error for m other runs). It depends on the axial cells only.
+            m = len(runs) - 1
+            print(f"no network, the mean tracer of the {m} other runs / floor of independent "
+                  f"runs (expected {np.sqrt(1 + 1 / m):.2f} for runs of equal noise):")
+            for axial in dict.fromkeys(key[0][0] for key in found[0]):
+                key = next(k for k in found[0] if k[0][0] == axial)
+                per_run = [f[key][2] / f[key][1] for f in found if key in f]
+                pooled = (np.mean([f[key][2] for f in found if key in f])
+                          / np.mean([f[key][1] for f in found if key in f]))
+                print(f"{axial:3d} axial cells:        " + " ".join(f"{x:5.2f}" for x in per_run)
+                      + f"   pooled {pooled:5.2f}")
         return
     if args.quick:
         mixer = BladedMixer(particles=(300, 300), diameter=0.0082)

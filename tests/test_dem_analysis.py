@@ -16,9 +16,11 @@ from axialmix.dem import (
     dem_available,
     dem_transport,
     flux_partition,
+    independent_mean_error,
     learn_network,
     region_counts,
     repeat_floor,
+    tracer_fractions,
     tracer_spreading,
     velocity_partition,
 )
@@ -294,3 +296,56 @@ def test_cells_of_run_numbers_layers_rings_and_sectors():
     for bad in ({"n_sectors": 0}, {"n_radial": 0}):
         with pytest.raises(ValueError, match="positive whole number"):
             cells_of_run(run, 2, **bad)
+
+
+def test_tracer_fractions_by_hand():
+    # Frames x spheres of axial cells; the tracer: spheres in cell 0 at the start.
+    axial = np.array([[0, 0, 1, 2],
+                      [1, 0, 1, 2],
+                      [2, 1, 0, 0],
+                      [0, 0, 0, 0]])
+    np.testing.assert_array_equal(tracer_fractions(axial, 3, 0, (1, 2)),
+                                  [[0.5, 0.5, 0.0], [0.0, 0.5, 0.5]])
+    # Two starts: frame 0 (spheres 0, 1) and frame 2 (spheres 2, 3), one frame later.
+    np.testing.assert_array_equal(tracer_fractions(axial, 3, [0, 2], (1,)),
+                                  [[(0.5 + 1.0) / 2, 0.5 / 2, 0.0]])
+    np.testing.assert_array_equal(tracer_fractions(axial, 3, 0, (1,), mask=np.array(
+        [False, True, True, True])), [[1.0, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="runs past"):
+        tracer_fractions(axial, 3, 2, (2,))
+    with pytest.raises(ValueError, match="no tracer sphere"):
+        tracer_fractions(axial, 3, 1, (1,), mask=np.array([True, False, True, True]))
+
+
+def test_independent_mean_error_by_hand_and_its_expected_size():
+    from axialmix.dem import TracerSpreading
+
+    times = np.array([0.1, 0.2])
+
+    def spreading(dem, t=times):
+        return TracerSpreading(times=t, dem=dem, predicted=dem, halves=np.stack([dem, dem]),
+                               error=np.zeros(len(t)), floor=np.ones(len(t)))
+
+    base = np.array([[0.5, 0.3, 0.2], [0.4, 0.4, 0.2]])
+    up = base + np.array([[0.06, -0.06, 0.0], [0.0, 0.03, -0.03]])
+    down = base - np.array([[0.0, 0.0, 0.0], [0.0, 0.03, -0.03]])
+    # The others' mean is base + [[0.03, -0.03, 0], [0, 0, 0]].
+    np.testing.assert_allclose(independent_mean_error(spreading(base), spreading(up),
+                                                      spreading(down)),
+                               [0.02, 0.0], atol=1e-15)
+    with pytest.raises(ValueError, match="at least one"):
+        independent_mean_error(spreading(base))
+    with pytest.raises(ValueError, match="share"):
+        independent_mean_error(spreading(base), spreading(base, times * 2))
+    # Independent Markov runs share nothing beyond their sampling noise: the others' mean
+    # misses each run by sqrt(1 + 1/m) times the floor of independent runs, on average.
+    n = 8
+    runs = [_ring_cells(seed) for seed in range(20, 28)]
+    learned = learn_network(runs[0][:1000], n, 0.01, 1, 100, n_bootstrap=0)
+    tracers = [tracer_spreading(cells, learned, 0.01, np.arange(1000, 1900, 50),
+                                (10, 30, 60)) for cells in runs]
+    floor = repeat_floor(*tracers).mean()
+    ratios = [independent_mean_error(t, *(tracers[:k] + tracers[k + 1:])).mean() / floor
+              for k, t in enumerate(tracers)]
+    expected = np.sqrt(1 + 1 / 7)
+    assert abs(np.mean(ratios) / expected - 1) < 0.15, (np.mean(ratios), ratios)

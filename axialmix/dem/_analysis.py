@@ -34,7 +34,9 @@ __all__ = [
     "cells_of_run",
     "dem_transport",
     "flux_partition",
+    "independent_mean_error",
     "region_counts",
+    "tracer_fractions",
     "tracer_spreading",
     "velocity_partition",
 ]
@@ -206,6 +208,37 @@ def cells_of_run(run, n_axial: int, *, n_radial: int = 1, n_sectors: int = 1,
                     names=names)
 
 
+def tracer_fractions(axial: np.ndarray, n_axial: int, start, delays,
+                     mask: np.ndarray | None = None) -> np.ndarray:
+    """A DEM tracer's fractions over axial cells: the spheres in axial cell 0 at each start
+    frame are the tracer; the share of them in each axial cell `delays` frames later,
+    averaged over the starts (the phase-averaged spreading a network describes).
+
+    **Arguments:** `axial` ``(frames, particles)`` axial cell of every sphere (0 to
+    ``n_axial - 1``); `start` frame or frames; `delays` frames after each start; `mask`
+    ``(particles,)`` the spheres that may be tracer (default all).
+
+    **Returns:** ``(delays, n_axial)`` fractions (each row sums to 1).
+
+    **Raises:** ``ValueError`` when a start plus a delay runs past the frames, or no sphere
+    of `mask` is in axial cell 0 at a start.
+    """
+    starts = np.atleast_1d(np.asarray(start, dtype=int))
+    delays = np.atleast_1d(np.asarray(delays, dtype=int))
+    if starts.max() + delays.max() >= axial.shape[0]:
+        raise ValueError("the last start plus the longest delay runs past the recorded frames.")
+    if mask is None:
+        mask = np.ones(axial.shape[1], bool)
+    out = np.zeros((delays.size, int(n_axial)))
+    for s0 in starts:
+        members = np.nonzero((axial[s0] == 0) & mask)[0]
+        if members.size == 0:
+            raise ValueError(f"no tracer sphere in the first cell at frame {s0}.")
+        for k, d in enumerate(delays):
+            out[k] += np.bincount(axial[s0 + d, members], minlength=n_axial) / members.size
+    return out / starts.size
+
+
 def tracer_spreading(cells: np.ndarray, learned: LearnedNetwork, frame_interval: float,
                      start, delays: tuple[int, ...], cells_per_layer: int = 1, seed: int = 0,
                      splits: int = 20) -> TracerSpreading:
@@ -236,18 +269,9 @@ def tracer_spreading(cells: np.ndarray, learned: LearnedNetwork, frame_interval:
     axial = cells // cells_per_layer
     starts = np.atleast_1d(np.asarray(start, dtype=int))
     delays = np.asarray(delays)
-    if starts.max() + delays.max() >= cells.shape[0]:
-        raise ValueError("the last start plus the longest delay runs past the recorded frames.")
 
     def fractions(mask):
-        out = np.zeros((delays.size, n_axial))
-        for s0 in starts:
-            members = np.nonzero((axial[s0] == 0) & mask)[0]
-            if members.size == 0:
-                raise ValueError(f"no tracer sphere in the first cell at frame {s0}.")
-            for k, d in enumerate(delays):
-                out[k] += np.bincount(axial[s0 + d, members], minlength=n_axial) / members.size
-        return out / starts.size
+        return tracer_fractions(axial, n_axial, starts, delays, mask)
 
     everyone = np.ones(cells.shape[1], bool)
     dem = fractions(everyone)
@@ -299,6 +323,29 @@ def repeat_floor(*spreadings: TracerSpreading) -> np.ndarray:
     pairs = [np.abs(a.dem - b.dem).mean(axis=1)
              for k, a in enumerate(spreadings) for b in spreadings[k + 1:]]
     return np.mean(pairs, axis=0) / np.sqrt(2.0)
+
+
+def independent_mean_error(spreading: TracerSpreading,
+                           *others: TracerSpreading) -> np.ndarray:
+    """How far a run's tracer is from the mean tracer of independent runs.
+
+    The mean of the `others`' DEM fractions (other seeds, same cells, starts and delays) is
+    the best prediction data from other runs can give, with no network in between; its error
+    on `spreading`'s DEM fractions says how much of any prediction's error is the run itself.
+    For ``m`` independent runs of equal noise its expected value is ``sqrt(1 + 1/m)`` times
+    an exact prediction's (the mean of ``m`` runs keeps ``1/m`` of their variance).
+
+    **Returns:** ``(delays,)`` mean over cells of ``|dem - mean of others' dem|``, in tracer
+    fraction, comparable with :attr:`TracerSpreading.error` and :func:`repeat_floor`.
+    """
+    if not others:
+        raise ValueError("the mean of independent runs needs at least one other run.")
+    for other in others:
+        if other.dem.shape != spreading.dem.shape or not np.array_equal(other.times,
+                                                                         spreading.times):
+            raise ValueError("the spreadings must share their cells and delays.")
+    mean = np.mean([other.dem for other in others], axis=0)
+    return np.abs(spreading.dem - mean).mean(axis=1)
 
 
 def region_counts(run, n_regions: int) -> np.ndarray:
