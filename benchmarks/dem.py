@@ -26,7 +26,9 @@ same section (other seeds; every pair of runs), floors that hold what the whole 
         --estimator likelihood --layouts 24x1,24x1x4,48x1x4 --lags 0.5,1.0 --bootstrap 0
 
 With ``--every-run`` each run is the section in turn and the errors over the floors of
-independent runs are pooled over the runs. With ``--pool`` each network is learned on the
+independent runs are pooled over the runs; beside them, the error of no network at all, the
+mean tracer of the other runs (axialmix.dem.independent_mean_error), says how far each run is
+from the others. With ``--pool`` each network is learned on the
 first halves of all the runs together (the section's and the others'), and still judged on
 the section's second half, which no network has seen.
 
