@@ -634,8 +634,10 @@ def learn_network(
     - `sequences`: ``(frames, particles)`` cell indices (0 to ``n_states - 1``), or a list
       of such arrays: several runs (or windows) of the same cells, learned as one network
       (their counts add; the bootstrap draws from the blocks of every run; each run must
-      hold at least two blocks). Several independent runs average out the slow fluctuations
-      that one run's window shares (a drift that wanders by a tenth over seconds).
+      hold at least two blocks). Several independent runs give the section's network
+      rather than one window's: the slow fluctuations a window shares (a drift that wanders
+      by a tenth over seconds) average out; it need not predict any one run's later frames
+      better.
     - `n_states`: number of cells.
     - `frame_interval`: time between frames, s.
     - `lag`: lag in frames; ``tau = lag * frame_interval``.
