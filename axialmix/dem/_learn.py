@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from axialmix._progress import iterate
+
 __all__ = [
     "LearnedNetwork",
     "MarkovTest",
@@ -419,7 +421,11 @@ def rates_by_likelihood(counts: np.ndarray, lag_seconds: float, edges: np.ndarra
     program = (_stationary_program if stationary else _likelihood_program)(
         n, edges, float(lag_seconds))  # jitted: compiled at its first call
     out = np.zeros(counts.shape)
-    for k, c in enumerate(counts):
+    # Bootstrap replicates are fitted one after another (minutes for hundreds of cells):
+    # a progress bar on a terminal.
+    replicates = iterate(counts, description="likelihood fits", unit="fit",
+                         enabled=None if counts.shape[0] > 1 else False)
+    for k, c in enumerate(replicates):
         arguments = (c,)
         if stationary:
             occupancy = count_occupancy(c)
