@@ -214,7 +214,8 @@ def _learn(args, out: Path) -> int:
     g = run.geometry
     lag = max(1, round(args.lag / run.frame_interval))
     block = max(1, round(g.revolution_time / run.frame_interval))
-    for k, each in enumerate([run, *more]):
+    runs = [run, *more]
+    for k, each in enumerate(runs):
         if each.n_frames - lag < 2 * block:
             name = f"{args.run[k]}: " if more else ""
             raise _BadInput(f"{name}the run has {each.n_frames} frames; two revolutions of "
@@ -237,8 +238,9 @@ def _learn(args, out: Path) -> int:
                                 estimator=args.estimator)
     except ValueError as error:
         raise _BadInput(f"{error}{kept}") from None
-    interrupted = run.interrupted or any(each.interrupted for each in more)
-    transport, *transport_more = (dem_transport(each) for each in [run, *more])
+    interrupted = any(each.interrupted for each in runs)
+    transports = [dem_transport(each) for each in runs]
+    transport = transports[0]
     v, d = learned.transport()
     (vlo, vhi), (dlo, dhi) = learned.transport_interval()
     test = markov_test(cells, n, run.frame_interval,
@@ -277,10 +279,9 @@ def _learn(args, out: Path) -> int:
         record["dem_further_runs"] = [
             {"run": path, "particles": each.n_particles, "frames": each.n_frames,
              "v_m_per_s": t.velocity, "D_z_m2_per_s": t.dispersion, "Pe": t.peclet}
-            for path, each, t in zip(args.run[1:], more, transport_more, strict=True)]
+            for path, each, t in zip(args.run[1:], more, transports[1:], strict=True)]
     write_json(out / "learn.json", _plain(record))
-    for k, (each, t) in enumerate(zip([run, *more], [transport, *transport_more],
-                                      strict=True)):
+    for k, (each, t) in enumerate(zip(runs, transports, strict=True)):
         print(f"DEM{f' {args.run[k]}' if more else ''} ({each.n_particles} spheres, "
               f"{each.times[-1]:.2f} s): v = {t.velocity * 1e3:.2f} mm/s, "
               f"D_z = {t.dispersion * 1e6:.1f} mm²/s, Pe = {t.peclet:.1f}")
