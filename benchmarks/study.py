@@ -7,13 +7,15 @@ of standard deviation 2 % of the curve's peak. Each is fitted as ``axialmix fit`
 study (:class:`fitting.study.batch.StudyRun`: measurement model A E(t), combined error model,
 the records and summary written to a temporary folder):
 
-* in one process, timed after the solver programs have been compiled (a warm-up chunk with
-  curves of every padded length comes first): on its default threads (two chunks in flight
-  on 2 cores, :func:`fitting.study.batch.default_threads`: one chunk's compiled fit overlaps
-  the other's Python) and on one thread, with the same records; and once more with absolute
-  errors (one unweighted fit a curve, the peers' error model);
-* on a local Dask cluster of two worker processes, timed after each worker has fitted a
-  warm-up chunk (the cluster's start is shown apart);
+* in one process, timed after the solver programs have been compiled (a warm-up chunk comes
+  first: curves of every padded length, and 256 curves drawn apart from the study's, among
+  them some the engine hands to the multi-start solver's path): on its default threads (two
+  chunks in flight on 2 cores, :func:`fitting.study.batch.default_threads`: one chunk's
+  compiled fit overlaps the other's Python) and on one thread, with the same records; and
+  once more with absolute errors (one unweighted fit a curve, the peers' error model);
+* on a local Dask cluster of two worker processes
+  (:func:`fitting.study.batch.local_cluster`, as ``axialmix fit --workers 2`` makes), timed
+  after each worker has fitted the warm-up chunk (the cluster's start is shown apart);
 * the peers, on the first ``--subset`` curves: a loop of ``scipy.optimize.curve_fit``, a
   loop of ``lmfit`` (least squares, ``leastsq``), and the scipy loop shared out over a
   ``joblib`` pool of ``--workers`` processes (what a user would try next; timed after each
@@ -40,7 +42,6 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import logging
 import os
 import sys
 import tempfile
@@ -110,14 +111,23 @@ def ours(study, records_of):
     return np.array(estimates, float), np.array(intervals, float)
 
 
+#: Curves of the warm-up drawn apart from the study's (another seed): enough that the few per
+#: cent the engine hands to the multi-start solver's path are among them, so those programs
+#: are compiled before the timing too.
+WARM_UP_CURVES = 256
+WARM_UP_SEED = 99991
+
+
 def warm_curves(study):
-    """One curve of each padded length class (16, 32, 64 samples)."""
+    """The warm-up: one curve of each padded length class (16, 32, 64 samples) of the study,
+    then :data:`WARM_UP_CURVES` other curves from the same ranges (not the study's)."""
     from fitting.solve import padded_length
 
     seen = {}
     for curve in study.curves:
         seen.setdefault(padded_length(len(curve)), curve)
-    return list(seen.values())
+    others, *_ = synthetic_study(WARM_UP_CURVES, WARM_UP_SEED)
+    return list(seen.values()) + list(others.curves)
 
 
 def run_one_process(plan, study, threads=None):
@@ -134,13 +144,12 @@ def run_one_process(plan, study, threads=None):
 
 
 def run_dask(plan, study, workers: int):
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
 
-    from fitting.study.batch import StudyRun, fit_chunk
+    from fitting.study.batch import StudyRun, fit_chunk, local_cluster
 
     began = time.perf_counter()
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR)
+    cluster = local_cluster(workers)
     client = Client(cluster)
     warm = warm_curves(study)
     futures = [client.submit(fit_chunk, plan, warm, workers=[address], pure=False)

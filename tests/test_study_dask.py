@@ -97,3 +97,17 @@ def test_command_line_on_two_worker_processes_equals_one_process(tmp_path):
     assert _without_wall_time(tmp_path / "two" / "summary.csv") == _without_wall_time(
         tmp_path / "one" / "summary.csv")
     print(f"{len(study)} curves: --workers 2 summary equals the one-process summary")
+
+
+@pytest.mark.study
+def test_local_cluster_workers_run_jax_on_one_thread():
+    # Each worker fits one chunk at a time; a second compute thread of JAX's CPU runtime
+    # would spin on the core the other worker needs (see WORKER_ENVIRONMENT).
+    import os
+
+    from fitting.study.batch import WORKER_ENVIRONMENT, local_cluster
+
+    with local_cluster(2) as cluster, distributed.Client(cluster) as client:
+        seen = client.run(lambda: os.environ.get("PJRT_NPROC"))
+    assert WORKER_ENVIRONMENT == {"PJRT_NPROC": "1"}
+    assert list(seen.values()) == ["1", "1"]
