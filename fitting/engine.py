@@ -347,6 +347,8 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
             "final_status": jnp.asarray(0), "final_step": jnp.asarray(0.0),
             "final_w": weights, "polish_passes": jnp.asarray(False),
             "passes": jnp.asarray(1), "sizes": jnp.zeros(2), "evaluations": jnp.asarray(0),
+            # The relative change of the fitted values at the last pass (inf before one).
+            "change": jnp.asarray(jnp.inf),
         }
 
         def body(state):
@@ -429,6 +431,7 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
                 "final_w": jnp.where(finishing, state["w"], state["final_w"]),
                 "polish_passes": state["polish_passes"] | (pass_done & polish),
                 "passes": jnp.where(pass_done, passes, state["passes"]),
+                "change": jnp.where(pass_done, change, state["change"]),
                 "sizes": jnp.where(new_pass, sizes_next,
                                    state["sizes"]),
                 "evaluations": evaluations,
@@ -461,6 +464,7 @@ def _chunk_function(model, layout: Layout, options: SolverPlan, errors: ErrorPla
         if errors.kind != "absolute":
             result.update(final=finish(final, state["final_status"], state["final_step"]),
                           weights=state["final_w"], passes=state["passes"],
+                          change=state["change"],
                           sizes=state["sizes"], polish_passes=state["polish_passes"],
                           evaluations=state["evaluations"])
         return result

@@ -625,6 +625,11 @@ def _engine_result(prepared: Prepared, lane: dict, shared: _EngineShared, wall: 
     if bool(lane["polish_passes"]):
         return None
     passes = int(lane["passes"])
+
+    def settled(result: FitResult, kind: str) -> FitResult:
+        return _with_settling(result, kind, passes, float(lane["change"]), errors.max_passes,
+                              errors.change)
+
     final_out = _lane_output(lane["final"], n)
     # What the first fit's result says of its starts (the passes share its starts and
     # settings: the same number of distinct starts and initial parameters).
@@ -634,20 +639,20 @@ def _engine_result(prepared: Prepared, lane: dict, shared: _EngineShared, wall: 
     if errors.kind == "poisson":
         final = _result(reweighted, layout, shared.single, final_out, wall, compile_time,
                         settings)
-        return _with_counting_errors(final, passes)
+        return settled(_with_counting_errors(final, passes), "counting")
     if errors.kind == "relative":
         note = f"relative errors: reweighted by 1/model^2 until consistent ({passes} passes)"
         final = _with_effective_dof(_result(reweighted, layout, shared.single, final_out,
                                             wall, compile_time, settings, method_note=note))
-        return dataclasses.replace(final, error_model=ErrorEstimate("relative", 0.0,
-                                                                    final.sigma, passes))
+        return settled(dataclasses.replace(
+            final, error_model=ErrorEstimate("relative", 0.0, final.sigma, passes)), "relative")
     note = ("additive plus proportional errors: reweighted by 1/(a^2 + (b model)^2), a "
             "and b estimated from the residuals, until consistent "
             f"({passes} passes)")
     a, b = (float(x) for x in lane["sizes"])
-    return _with_estimated_weight_shape(_result(
+    return settled(_with_estimated_weight_shape(_result(
         reweighted, layout, shared.single, final_out, wall, compile_time, settings,
-        method_note=note, error_model=ErrorEstimate("combined", a, b, passes)))
+        method_note=note, error_model=ErrorEstimate("combined", a, b, passes))), "combined")
 
 
 def _fit_polished(model, curves, params, weights, settings: FitSettings) -> list[FitResult]:
@@ -751,9 +756,22 @@ def _fit_polished(model, curves, params, weights, settings: FitSettings) -> list
 
 
 def _relative_weights(result: FitResult, loss: str, floor: float) -> np.ndarray:
+    """The next pass's weights ``1 / max(|m|, floor · peak)²`` from a pass's model curve;
+    a one-line ``ValueError`` where they cannot be formed (a model curve of zero: the
+    passes collapsed, as they do where the noise does not scale with the model)."""
     size = np.abs(np.asarray(result.predicted, dtype=float))
-    size = np.maximum(size, floor * max(float(size.max(initial=0.0)), 1e-300))
-    return 1.0 / (size**2 if loss == "sse" else size)
+    peak = float(size.max(initial=0.0))
+    size = np.maximum(size, floor * max(peak, 1e-300))
+    with np.errstate(divide="ignore", over="ignore"):
+        weights = 1.0 / (size**2 if loss == "sse" else size)
+    if not np.all(np.isfinite(weights)):
+        label = f"curve {result.name!r}" if result.name else "the curve"
+        raise ValueError(
+            f"relative errors collapsed on {label}: a reweighted fit's model curve peaks at "
+            f"{peak:.3g} (the fitted values drifted pass after pass), so the weights "
+            "1/model^2 cannot be formed; the noise of this curve does not scale with the "
+            "model: fit it with combined errors (the default) or absolute errors")
+    return weights
 
 
 @dataclasses.dataclass
@@ -766,6 +784,8 @@ class _Passes:
     evaluations: np.ndarray
     wall: np.ndarray
     compile_time: np.ndarray
+    #: Per curve, the relative change of its fitted values at the last pass (inf: none).
+    changes: np.ndarray
 
     def finished(self, first: Sequence[FitResult], settings: FitSettings,
                  method: str) -> list[FitResult]:
@@ -778,6 +798,43 @@ class _Passes:
                                      self.compile_time, strict=True)]
 
 
+#: A reweighted fit stopped by its limit of passes counts as settled when its last pass moved
+#: every fitted value by less than this share of the smallest relative standard error (the
+#: weights' last change then moves nothing its intervals can show).
+SETTLED_SHARE = 0.1
+
+
+def _with_settling(result: FitResult, kind: str, passes: int, change: float,
+                   max_passes: int, change_limit: float) -> FitResult:
+    """`result`, told plainly where its reweighted passes did not settle.
+
+    The passes stop when the fitted values change by at most `change_limit` (relative), or
+    after `max_passes` fits. Stopped by the limit with a last change above
+    :data:`SETTLED_SHARE` of the smallest relative standard error, the error model's weights
+    still moved the fit when the passes stopped: it is not a fit under that error model (for
+    relative errors on noise that does not scale with the model the passes wander without
+    end), so the result is marked not converged, saying why.
+    """
+    if passes < max_passes or not change > change_limit:
+        return result
+    relative = [abs(result.stderr[n] / result.values[n]) for n in result.free_names
+                if result.stderr.get(n) is not None and result.values[n]
+                and math.isfinite(result.stderr[n])]
+    scale = min(relative, default=math.nan)
+    if math.isfinite(change) and math.isfinite(scale) and change < SETTLED_SHARE * scale:
+        return result
+    message = (f"not converged: the {kind} error model's reweighted fits did not settle in "
+               f"{passes} passes (the last moved the fitted values by {change:.2g}, relative"
+               + (f"; their smallest relative standard error is {scale:.2g}" if
+                  math.isfinite(scale) else "")
+               + "): the weights do not describe this curve's noise, so its values and "
+               "intervals are not those of a fit under this error model; "
+               + ("try absolute errors (one unweighted fit)" if kind == "combined" else
+                  "try combined errors (the default: they estimate how the noise grows with "
+                  "the model)"))
+    return dataclasses.replace(result, converged=False, success=False, message=message)
+
+
 def _reweighted_passes(model, curves: Sequence[Curve], first: Sequence[FitResult],
                        settings: FitSettings, max_passes: int, change_limit: float,
                        next_weights: Callable[[list[FitResult]], list[np.ndarray] | None],
@@ -786,6 +843,7 @@ def _reweighted_passes(model, curves: Sequence[Curve], first: Sequence[FitResult
     from the last fit), until the fitted values change by at most `change_limit` (relative)
     or `max_passes` fits were made; `next_weights` returns ``None`` to stop early."""
     results, count = list(first), 1
+    changes = np.full(len(first), np.inf)
     evaluations = np.array([r.n_evaluations for r in first])
     wall = np.array([r.wall_time for r in first])
     compile_time = np.array([r.compile_time for r in first])
@@ -804,12 +862,13 @@ def _reweighted_passes(model, curves: Sequence[Curve], first: Sequence[FitResult
         evaluations += [r.n_evaluations for r in new]
         wall += [r.wall_time for r in new]
         compile_time += [r.compile_time for r in new]
-        change = max(abs(b.values[n] / a.values[n] - 1) if a.values[n] else abs(b.values[n])
-                     for a, b in zip(results, new, strict=True) for n in a.free_names)
+        changes = np.array([max(abs(b.values[n] / a.values[n] - 1) if a.values[n]
+                                else abs(b.values[n]) for n in a.free_names)
+                            for a, b in zip(results, new, strict=True)])
         results = new
-        if change <= change_limit:
+        if changes.max(initial=0.0) <= change_limit:
             break
-    return _Passes(results, count, evaluations, wall, compile_time)
+    return _Passes(results, count, evaluations, wall, compile_time, changes)
 
 
 def _refit_with_relative_errors(model, curves: Sequence[Curve], first: Sequence[FitResult],
@@ -822,9 +881,10 @@ def _refit_with_relative_errors(model, curves: Sequence[Curve], first: Sequence[
         lambda results: [_relative_weights(r, settings.loss, relative.floor) for r in results])
     method = f"relative errors: reweighted by 1/model^2 until consistent ({passes.count} passes)"
     finished = [_with_effective_dof(r) for r in passes.finished(first, settings, method)]
-    return [dataclasses.replace(r, error_model=ErrorEstimate("relative", 0.0, r.sigma,
-                                                             passes.count))
-            for r in finished]
+    return [_with_settling(dataclasses.replace(
+                r, error_model=ErrorEstimate("relative", 0.0, r.sigma, passes.count)),
+                "relative", passes.count, change, relative.max_passes, relative.change)
+            for r, change in zip(finished, passes.changes, strict=True)]
 
 
 def _refit_with_counting_errors(model, curves: Sequence[Curve], first: Sequence[FitResult],
@@ -838,8 +898,10 @@ def _refit_with_counting_errors(model, curves: Sequence[Curve], first: Sequence[
         lambda results: [counting_weights(r.predicted, x, counting.floor)
                          for r, x in zip(results, exposures, strict=True)])
     method = f"{_COUNTING_METHOD} ({passes.count} passes)"
-    return [_with_counting_errors(r, passes.count)
-            for r in passes.finished(first, settings, method)]
+    return [_with_settling(_with_counting_errors(r, passes.count), "counting", passes.count,
+                           change, counting.max_passes, counting.change)
+            for r, change in zip(passes.finished(first, settings, method), passes.changes,
+                                 strict=True)]
 
 
 _COUNTING_METHOD = ("counting (Poisson) errors: reweighted by exposure/model until consistent, "
@@ -905,9 +967,11 @@ def _refit_with_combined_errors(model, curves: Sequence[Curve], first: Sequence[
                                 combined.change, next_weights)
     method = (f"additive plus proportional errors: reweighted by 1/(a^2 + (b model)^2), a and "
               f"b estimated from the residuals, until consistent ({passes.count} passes)")
-    return [_with_estimated_weight_shape(dataclasses.replace(
-                r, error_model=ErrorEstimate("combined", a, b, passes.count)))
-            for r, (a, b) in zip(passes.finished(first, settings, method), used, strict=True)]
+    return [_with_settling(_with_estimated_weight_shape(dataclasses.replace(
+                r, error_model=ErrorEstimate("combined", a, b, passes.count))),
+                "combined", passes.count, change, combined.max_passes, combined.change)
+            for r, (a, b), change in zip(passes.finished(first, settings, method), used,
+                                         passes.changes, strict=True)]
 
 
 def _kept_unweighted(result: FitResult, settings: FitSettings) -> FitResult:

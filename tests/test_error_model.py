@@ -112,3 +112,26 @@ def test_combined_errors_settings_reject_nonsense():
         CombinedErrors(max_passes=1)
     with pytest.raises(ValueError, match="change"):
         CombinedErrors(change=0.0)
+
+
+def test_reweighted_passes_stopped_by_their_limit_are_judged_against_the_standard_errors():
+    # The rule of fitting.fit._with_settling: a fit whose passes stopped by the limit while
+    # its values still moved by a tenth of their smallest relative standard error or more
+    # is not converged; one that moved less, or stopped before the limit, or met the change
+    # limit, is left as it is.
+    from fitting.fit import SETTLED_SHARE, _with_settling
+
+    result = fit(measured("adm"), _noisy_curve(2, 0.01, 0.05), errors="combined")
+    assert result.converged
+    scale = min(abs(result.stderr[n] / result.values[n]) for n in result.free_names)
+    below, above = 0.5 * SETTLED_SHARE * scale, 2.0 * SETTLED_SHARE * scale
+    assert _with_settling(result, "combined", 20, below, 20, 1e-8) is result
+    assert _with_settling(result, "combined", 19, above, 20, 1e-8) is result
+    assert _with_settling(result, "combined", 20, 1e-9, 20, 1e-8) is result
+    moved = _with_settling(result, "combined", 20, above, 20, 1e-8)
+    assert not moved.converged and not moved.success
+    assert moved.message.startswith("not converged: the combined error model's reweighted fits "
+                                    "did not settle in 20 passes")
+    assert "try absolute errors" in moved.message
+    assert moved.values == result.values  # the numbers are kept, and said to be unsettled
+    assert not _with_settling(result, "relative", 10, float("inf"), 10, 1e-8).converged

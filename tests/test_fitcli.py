@@ -212,3 +212,69 @@ def test_bad_folder_file_and_options_are_one_line_errors(tmp_path, capsys):
         lines = capsys.readouterr().err.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("axialmix fit: error: ")
     assert not out.exists()
+
+
+def _additive_noise_curve(path: Path, seed: int) -> None:
+    """A closed-closed ADM curve (tau 80 s, Pe 60) sampled over 0-240 s with additive noise
+    of 2 % of its peak: its tails hold noise and no signal."""
+    import numpy as np
+
+    from axialmix.analytic import exit_age_closed
+
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 240.0, 59)
+    e = np.asarray(exit_age_closed(t, 80.0, 60.0))
+    y = e + 0.02 * e.max() * rng.standard_normal(t.size)
+    path.write_text("time_s,E_per_s\n" + "".join(f"{a:.17g},{b:.17g}\n"
+                                                 for a, b in zip(t, y, strict=True)))
+
+
+def test_relative_errors_that_do_not_settle_say_so(tmp_path, capsys):
+    # Relative errors on additive noise: the weights 1/model^2 put the zero-signal tails
+    # first, and the reweighted fits wander pass after pass (tau 189 s where it is 80 s).
+    # Such a fit must not be reported as converged; the default error model fits the curve.
+    path = tmp_path / "tails.csv"
+    _additive_noise_curve(path, seed=0)
+    assert main(["fit", str(path), "--model", "adm", "--errors", "relative",
+                 "--out", str(tmp_path / "relative")]) == 0
+    printed = capsys.readouterr().out
+    record = json.loads((tmp_path / "relative" / "tails.json").read_text())
+    assert record["converged"] is False
+    assert record["message"].startswith("not converged: the relative error model's reweighted "
+                                        "fits did not settle in 10 passes")
+    assert "try combined errors" in record["message"]
+    assert "did not settle" in printed
+    assert abs(record["parameters"]["tau"]["value"] / 80.0 - 1) > 0.5  # why it must say so
+    assert main(["fit", str(path), "--model", "adm", "--out", str(tmp_path / "combined")]) == 0
+    capsys.readouterr()
+    default = json.loads((tmp_path / "combined" / "tails.json").read_text())
+    assert default["converged"] is True
+    assert default["parameters"]["tau"]["value"] == pytest.approx(80.0, rel=0.01)
+
+
+def test_relative_errors_that_collapse_are_a_one_line_error(tmp_path, capsys):
+    # A curve of the study benchmark's kind (tau 83.7 s, Pe 58.5, 59 samples over 0-3 tau,
+    # additive noise of 2 % of the peak) whose relative-error passes drift until the model
+    # curve is zero everywhere: the weights cannot be formed, and the command says why.
+    import numpy as np
+
+    from axialmix.analytic import exit_age_closed
+
+    rng = np.random.default_rng(1)
+    count = 640
+    tau = np.exp(rng.uniform(np.log(7.0), np.log(225.0), count))
+    peclet = np.exp(rng.uniform(np.log(8.0), np.log(137.0), count))
+    sizes = rng.integers(15, 61, count)
+    for i in range(543):
+        t = np.linspace(0.0, 3.0 * tau[i], sizes[i])
+        exact = np.asarray(exit_age_closed(t, tau[i], peclet[i]))
+        noisy = exact + 0.02 * exact.max() * rng.standard_normal(t.size)
+    path = tmp_path / "drift.csv"
+    path.write_text("t [s],c\n" + "".join(f"{float(a)!r},{float(b)!r}\n"
+                                         for a, b in zip(t, noisy, strict=True)))
+    assert main(["fit", str(path), "--model", "adm", "--errors", "relative",
+                 "--out", str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.count("\n") == 0
+    assert "relative errors collapsed on curve 'drift'" in error
+    assert "weights 1/model^2 cannot be formed" in error

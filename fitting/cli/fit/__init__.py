@@ -202,7 +202,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                        help="curves fitted and written together, one Dask task "
                        "(default: 64)")
     study.add_argument("--workers", type=int, default=None, metavar="N",
-                       help="fit on a local Dask cluster of N processes")
+                       help="fit on a local Dask cluster of N processes (each runs JAX on "
+                       "one compute thread, PJRT_NPROC=1)")
     study.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="fit on the Dask scheduler at ADDRESS (tcp://host:8786)")
     study.add_argument("--plots", action="store_true",

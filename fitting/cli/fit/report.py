@@ -1,5 +1,6 @@
 """What ``axialmix fit`` prints for a single curve: its table of values, standard errors and
-intervals, what the data determine, the error model and the equivalent ADM.
+intervals, why a fit did not converge, what the data determine, the error model and the
+equivalent ADM.
 """
 
 from __future__ import annotations
@@ -7,6 +8,8 @@ from __future__ import annotations
 
 def print_single(result, grid, record, fit_table, length: float | None = None) -> None:
     print(fit_table(result, grid, length))
+    if not result.converged:  # why, first: the table says only "no"
+        print(f"  * {result.message[0].upper()}{result.message[1:]}.")
     for sentence in record["identifiability"]:
         print(f"  * {sentence}")
     for name, meaning in record.get("meanings", {}).items():
