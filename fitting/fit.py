@@ -804,6 +804,18 @@ class _Passes:
 SETTLED_SHARE = 0.1
 
 
+#: Why reweighted fits may not settle, and what to do, by error model.
+_UNSETTLED_ADVICE = {
+    "relative": ("the noise of this curve does not grow with the model: try combined errors "
+                 "(the default: they estimate how the noise grows with the model)"),
+    "combined": ("the error sizes estimated from each fit's residuals keep moving the fit: try "
+                 "absolute errors (one unweighted fit)"),
+    "counting": ("counts have Poisson noise, so the fits moved between distinct optima of "
+                 "parameters this curve determines poorly (see what it determines): fix or tie "
+                 "one of them"),
+}
+
+
 def _with_settling(result: FitResult, kind: str, passes: int, change: float,
                    max_passes: int, change_limit: float) -> FitResult:
     """`result`, told plainly where its reweighted passes did not settle.
@@ -827,11 +839,8 @@ def _with_settling(result: FitResult, kind: str, passes: int, change: float,
                f"{passes} passes (the last moved the fitted values by {change:.2g}, relative"
                + (f"; their smallest relative standard error is {scale:.2g}" if
                   math.isfinite(scale) else "")
-               + "): the weights do not describe this curve's noise, so its values and "
-               "intervals are not those of a fit under this error model; "
-               + ("try absolute errors (one unweighted fit)" if kind == "combined" else
-                  "try combined errors (the default: they estimate how the noise grows with "
-                  "the model)"))
+               + "), so its values and intervals are not those of a fit under this error "
+               "model; " + _UNSETTLED_ADVICE[kind])
     return dataclasses.replace(result, converged=False, success=False, message=message)
 
 
