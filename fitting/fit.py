@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -841,7 +842,11 @@ def _with_settling(result: FitResult, kind: str, passes: int, change: float,
                   math.isfinite(scale) else "")
                + "), so its values and intervals are not those of a fit under this error "
                "model; " + _UNSETTLED_ADVICE[kind])
-    return dataclasses.replace(result, converged=False, success=False, message=message)
+    # The method's own words ("until consistent", "the maximum-likelihood fit") no longer hold.
+    method = re.sub(r"until consistent(, the maximum-likelihood fit)? \(\d+ passes\)",
+                    f"not consistent after {passes} passes", result.method)
+    return dataclasses.replace(result, converged=False, success=False, message=message,
+                               method=method)
 
 
 def _reweighted_passes(model, curves: Sequence[Curve], first: Sequence[FitResult],

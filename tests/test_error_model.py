@@ -3,6 +3,8 @@ weights of a fit, and its settings."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -134,8 +136,16 @@ def test_reweighted_passes_stopped_by_their_limit_are_judged_against_the_standar
                                     "did not settle in 20 passes")
     assert "try absolute errors" in moved.message
     assert moved.values == result.values  # the numbers are kept, and said to be unsettled
+    assert "until consistent" in result.method and "until consistent" not in moved.method
+    assert "not consistent after 20 passes" in moved.method
     relative = _with_settling(result, "relative", 10, float("inf"), 10, 1e-8)
     assert not relative.converged and "try combined errors" in relative.message
     # Counts have Poisson noise by nature: there the passes hop between optima.
-    assert "fix or tie one of them" in _with_settling(result, "counting", 20, above, 20,
-                                                      1e-8).message
+    from fitting.fit import _COUNTING_METHOD
+
+    counted = dataclasses.replace(result, method=f"levenberg-marquardt; {_COUNTING_METHOD} (20 "
+                                                 "passes)")
+    unsettled = _with_settling(counted, "counting", 20, above, 20, 1e-8)
+    assert "fix or tie one of them" in unsettled.message
+    assert unsettled.method == "levenberg-marquardt; counting (Poisson) errors: reweighted by " \
+        "exposure/model not consistent after 20 passes"
