@@ -41,6 +41,7 @@ folders (temporary) into the current folder, as ``axialmix fit --out`` would.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import os
 import sys
@@ -126,8 +127,14 @@ def warm_curves(study):
     seen = {}
     for curve in study.curves:
         seen.setdefault(padded_length(len(curve)), curve)
+    return list(seen.values()) + list(_warm_up_others())
+
+
+@functools.lru_cache(maxsize=1)
+def _warm_up_others() -> tuple:
+    """The warm-up's curves drawn apart from the study's (made once: every run warms up)."""
     others, *_ = synthetic_study(WARM_UP_CURVES, WARM_UP_SEED)
-    return list(seen.values()) + list(others.curves)
+    return others.curves
 
 
 def run_one_process(plan, study, threads=None):
