@@ -59,7 +59,8 @@ from fitting.solve import (
 )
 
 __all__ = ["CHUNK", "LANES", "ErrorPlan", "chunk_program", "chunk_shape", "combined_errors",
-           "describe_device", "fit_chunk_arrays", "leverages"]
+           "describe_device", "fit_chunk_arrays", "launch_chunk_arrays", "LaunchedChunk",
+           "leverages"]
 
 
 @dataclass(frozen=True)
@@ -592,15 +593,45 @@ def fit_chunk_arrays(model, layout: Layout, options: SolverPlan, errors: ErrorPl
     times, observed values and weights (zero: a point that does not count).
 
     **Returns:** ``(outputs as NumPy arrays with a leading curve axis, run seconds, compile
-    or load seconds)``.
+    or load seconds)``: :func:`launch_chunk_arrays` collected at once.
     """
+    return launch_chunk_arrays(model, layout, options, errors, starts, warm, base, scale,
+                               time, observed, weights).collect()
+
+
+@dataclass(frozen=True)
+class LaunchedChunk:
+    """Chunk programs started on the device and not yet waited for
+    (:func:`launch_chunk_arrays`): per program its outputs (device arrays) and the curves
+    it holds, the compile or load seconds, and when the programs were started."""
+
+    outputs: tuple[tuple[dict, int], ...]
+    compile_seconds: float
+    started: float
+
+    def collect(self) -> tuple[dict, float, float]:
+        """Wait for the programs: ``(outputs as NumPy arrays with a leading curve axis,
+        seconds from the start to the last output, compile or load seconds)``."""
+        parts = [jax.tree.map(lambda a, used=used: a[:used], jax.device_get(out))
+                 for out, used in self.outputs]
+        run_seconds = _time.perf_counter() - self.started
+        merged = jax.tree.map(lambda *arrays: np.concatenate(arrays), *parts)
+        return merged, run_seconds, self.compile_seconds
+
+
+def launch_chunk_arrays(model, layout: Layout, options: SolverPlan, errors: ErrorPlan, starts,
+                        warm, base, scale, time, observed, weights) -> LaunchedChunk:
+    """Start the chunk programs of :func:`fit_chunk_arrays` (same arguments) and return
+    without waiting for them: JAX runs them while the caller does other work (the records
+    of the chunk before), and :meth:`LaunchedChunk.collect` gives their outputs."""
     arrays = [np.asarray(a, dtype=dtype) for a, dtype in (
         (starts, float), (warm, bool), (base, float), (scale, float), (time, float),
         (observed, float), (weights, float))]
     count, length = arrays[0].shape[0], arrays[4].shape[1]
     lanes, size = chunk_shape(length)
     program = chunk_program(model, layout, options, errors, lanes)
-    outputs, run_seconds, compile_seconds = [], 0.0, 0.0
+    outputs, compile_seconds = [], 0.0
+    started = _time.perf_counter()
     for begin in range(0, count, size):
         part = [a[begin:begin + size] for a in arrays]
         used = part[0].shape[0]
@@ -609,9 +640,7 @@ def fit_chunk_arrays(model, layout: Layout, options: SolverPlan, errors: ErrorPl
         active = np.arange(size) < used
         executable, seconds = program.executable((active, *part))
         compile_seconds += seconds
-        began = _time.perf_counter()
-        out = jax.device_get(executable(active, *part))
-        run_seconds += _time.perf_counter() - began
-        outputs.append(jax.tree.map(lambda a, used=used: a[:used], out))
-    merged = jax.tree.map(lambda *parts: np.concatenate(parts), *outputs)
-    return merged, run_seconds, compile_seconds
+        if seconds:
+            started = _time.perf_counter()  # the run's time leaves the compilation out
+        outputs.append((executable(active, *part), used))
+    return LaunchedChunk(tuple(outputs), compile_seconds, started)

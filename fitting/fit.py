@@ -43,7 +43,7 @@ import numpy as np
 
 from axialmix.analytic.panels import LONG_CURVE
 from fitting.data import Curve, as_curve
-from fitting.engine import ErrorPlan, fit_chunk_arrays
+from fitting.engine import ErrorPlan, launch_chunk_arrays
 from fitting.losses import (
     ERROR_KINDS,
     CombinedErrors,
@@ -84,7 +84,7 @@ from fitting.uncertainty import (
     t_quantile,
 )
 
-__all__ = ["fit", "fit_many", "prepare", "settings_from_keywords"]
+__all__ = ["fit", "fit_many", "launch_many", "prepare", "settings_from_keywords"]
 
 
 def settings_from_keywords(loss: str = "sse", optimiser: Optimiser | None = None,
@@ -353,8 +353,14 @@ def _fit_final(model, curves, params, weights, settings: FitSettings) -> list[Fi
     """The fits of :func:`_fit_batch` with their intervals widened to hold the other optima
     the multi-start found (:func:`fitting.optima.with_other_optima`) and, for long curves,
     the model's evaluation checked on every point (:func:`_with_evaluation_check`)."""
-    return [_with_evaluation_check(with_other_optima(r))
-            for r in _fit_batch(model, curves, params, weights, settings)]
+    return _launch_final(model, curves, params, weights, settings)()
+
+
+def _launch_final(model, curves, params, weights, settings: FitSettings
+                  ) -> Callable[[], list[FitResult]]:
+    """:func:`_fit_final` started (see :func:`launch_many`)."""
+    finish = _launch_batch(model, curves, params, weights, settings)
+    return lambda: [_with_evaluation_check(with_other_optima(r)) for r in finish()]
 
 
 #: Largest deviation of an interpolated model from the exact one, as a share of the peak,
@@ -426,9 +432,33 @@ def fit_many(
     One :class:`~fitting.result.FitResult` per curve, in order; `wall_time` is each curve's
     share of the call.
     """
+    return launch_many(model, curves, params, loss=loss, weights=weights, optimiser=optimiser,
+                       multistart=multistart, relative_errors=relative_errors,
+                       errors=errors)()
+
+
+def launch_many(
+    model: Model | str,
+    curves: Sequence[Curve | tuple],
+    params: Mapping[str, Parameter | float] | Sequence[Mapping | None] | None = None,
+    *,
+    loss: str = "sse",
+    weights: Sequence[Sequence[float] | None] | None = None,
+    optimiser: Optimiser | None = None,
+    multistart: MultiStart | None = None,
+    relative_errors: RelativeErrors | bool | None = None,
+    errors: str | RelativeErrors | CombinedErrors | None = None,
+) -> Callable[[], list[FitResult]]:
+    """:func:`fit_many`, started: the compiled fits run while the caller goes on.
+
+    The arguments are :func:`fit_many`'s; bad data or settings raise here. The returned
+    function waits for the fits and gives what :func:`fit_many` returns, the same numbers.
+    A study starts its next chunk this way before it writes the records of the last, so
+    its Python work and its compiled fits overlap.
+    """
     settings = settings_from_keywords(loss, optimiser, multistart, relative_errors)
     settings = with_error_model(settings, errors)
-    return _fit_final(model, curves, params, weights, settings)
+    return _launch_final(model, curves, params, weights, settings)
 
 
 
@@ -510,6 +540,13 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
     """Fit curves with the batched engine (:mod:`fitting.engine`): the curves of each padded
     length in one compiled call; curves the engine flags for polishing by the multi-start
     solver's path."""
+    return _launch_batch(model, curves, params, weights, settings)()
+
+
+def _launch_batch(model, curves, params, weights, settings: FitSettings
+                  ) -> Callable[[], list[FitResult]]:
+    """:func:`_fit_batch` started: the engine's programs run, the returned function waits
+    for them and builds the results (the multi-start solver's path runs in it)."""
     if _reweighting(settings) is not None and weights is not None:
         raise ValueError(f"{_reweighting(settings)} sets the weights itself; pass weights=None")
     curves = [as_curve(c) for c in curves]
@@ -518,7 +555,7 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
     options = make_plan(settings.loss, settings.optimiser, settings.multistart)
     if options.method != "lm":
         # L-BFGS and Adam (the mean absolute error): each start on its own.
-        return _fit_polished(model, curves, params, weights, settings)
+        return lambda: _fit_polished(model, curves, params, weights, settings)
     counting = settings.counting_errors is not None
     # Counts: the first fit is weighted by the exposure, which the passes' weights keep.
     prepared = _prepare_batch(model, curves, params,
@@ -529,7 +566,7 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
         # the single-start programs (measured: 24 s against 0.5 s for the four-compartment
         # model's 8 starts), so these fits keep the multi-start solver's path. The choice
         # follows the settings and the model only, never the chunk.
-        return _fit_polished(model, curves, params, weights, settings)
+        return lambda: _fit_polished(model, curves, params, weights, settings)
     options = _without_idle_warmup(options, prepared)
     errors = _error_plan(settings)
     layout = prepared[0].layout
@@ -540,37 +577,43 @@ def _fit_batch(model, curves, params, weights, settings: FitSettings) -> list[Fi
                                       counting_errors=None),
         options, dataclasses.replace(options, warmup_steps=0), errors,
         weights is not None or counting)
-    results: list[FitResult | None] = [None] * len(curves)
-    polish: list[int] = []
     groups: dict[int, list[int]] = {}
     for i, p in enumerate(prepared):
         groups.setdefault(padded_length(len(p.curve)), []).append(i)
+    launched = []
     for length, members in groups.items():
         padded = [pad_curve(prepared[i].curve.time, prepared[i].curve.value,
                              prepared[i].weights, length) for i in members]
-        out, wall, compile_time = fit_chunk_arrays(
+        launched.append((members, launch_chunk_arrays(
             prepared[0].model, layout, options, errors,
             np.stack([prepared[i].starts for i in members]),
             np.stack([prepared[i].warm for i in members]),
             np.stack([prepared[i].base for i in members]),
             np.stack([prepared[i].layout.scale for i in members]),
-            *(np.stack([row[k] for row in padded]) for k in range(3)))
-        share, compile_share = wall / len(members), compile_time / len(members)
-        for row, i in enumerate(members):
-            lane = jax.tree.map(lambda a, row=row: a[row], out)
-            result = _engine_result(prepared[i], lane, shared, share, compile_share)
-            if result is None:
-                polish.append(i)
-            else:
-                results[i] = result
-    if polish:
+            *(np.stack([row[k] for row in padded]) for k in range(3)))))
+
+    def finish() -> list[FitResult]:
+        results: list[FitResult | None] = [None] * len(curves)
+        polish: list[int] = []
+        for members, chunk in launched:
+            out, wall, compile_time = chunk.collect()
+            share, compile_share = wall / len(members), compile_time / len(members)
+            for row, i in enumerate(members):
+                lane = jax.tree.map(lambda a, row=row: a[row], out)
+                result = _engine_result(prepared[i], lane, shared, share, compile_share)
+                if result is None:
+                    polish.append(i)
+                else:
+                    results[i] = result
         # Curves the multi-start solver polishes, each alone (so that its path and numbers
         # are the same in every chunk).
-        for i in polish:
+        for i in sorted(polish):
             results[i] = _fit_polished(
                 model, [curves[i]], [prepared[i].params],
                 None if weights is None else [weights[i]], settings)[0]
-    return results
+        return results
+
+    return finish
 
 
 def _lane_output(lane: dict, n: int) -> dict:

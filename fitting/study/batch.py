@@ -62,7 +62,7 @@ import numpy as np
 from axialmix._files import csv_text, write_atomic, write_csv, write_json
 from axialmix._progress import progress_bar
 from fitting.data import Curve
-from fitting.fit import fit, fit_many
+from fitting.fit import fit, launch_many
 from fitting.losses import ERROR_KINDS
 from fitting.measurement import FREEABLE, INLET_KINDS, Inlet, measured
 from fitting.models import MODELS, Model, network_model
@@ -79,8 +79,8 @@ from fitting.solve import MultiStart, enable_compilation_cache
 from fitting.study.input import Study, factor_value
 
 __all__ = ["CURVE_FOLDER", "DEFAULT_CHUNK", "JOURNAL_NAME", "StudyPlan", "StudyRun", "fit_chunk",
-           "fit_chunk_drawn", "default_threads", "local_cluster", "map_chunks", "plan_model",
-           "study_table"]
+           "fit_chunk_drawn", "default_threads", "launch_chunk", "local_cluster", "map_chunks",
+           "plan_model", "study_table"]
 
 #: Curves per chunk (and per Dask task) unless told.
 DEFAULT_CHUNK = 64
@@ -190,34 +190,52 @@ _CACHE_ENABLED = threading.Event()
 def _fit_results(plan: StudyPlan, curves: Sequence[Curve],
                  inlets: Sequence[Curve | None] | None) -> tuple[list, dict[int, str]]:
     """The fits of a chunk (``None`` for a refused curve) and the refused curves' reasons."""
+    return _launch_results(plan, curves, inlets)()
+
+
+def _launch_results(plan: StudyPlan, curves: Sequence[Curve],
+                    inlets: Sequence[Curve | None] | None
+                    ) -> Callable[[], tuple[list, dict[int, str]]]:
+    """:func:`_fit_results` started: the chunk's compiled fits run while the caller goes on;
+    the returned function waits for them and gives the fits and the refused curves."""
     if not _CACHE_ENABLED.is_set():
         enable_compilation_cache()
         _CACHE_ENABLED.set()
     settings = dict(plan.parameters)
     inlets = inlets if inlets is not None else [None] * len(curves)
-    results: list = [None] * len(curves)
     # Curves with the plan's inlet share one model: one batched fit for all of them.
     shared = [i for i, inlet in enumerate(inlets) if inlet is None]
     own = [i for i, inlet in enumerate(inlets) if inlet is not None]
     options = dict(loss="sse", errors=plan.errors, multistart=MultiStart(n_starts=plan.starts))
+    launched = None
     if shared:
         try:
-            fitted = fit_many(plan_model(plan), [curves[i] for i in shared], settings, **options)
+            launched = launch_many(plan_model(plan), [curves[i] for i in shared], settings,
+                                   **options)
         except ValueError:
-            fitted = None  # some curve cannot be fitted: find it, curve by curve
-        if fitted is not None:
-            for i, result in zip(shared, fitted, strict=True):
-                results[i] = result
-        else:
-            own = sorted(own + shared)
-    refused: dict[int, str] = {}
-    for i in own:
-        try:
-            results[i] = fit(plan_model(plan, inlets[i]), curves[i], settings, **options)
-        except ValueError as error:  # this curve is listed with its reason, the rest fitted
-            refused[i] = f"curve {curves[i].name!r}: {' '.join(str(error).split())}"
-            results[i] = None
-    return results, refused
+            own = sorted(own + shared)  # some curve cannot be fitted: find it, curve by curve
+
+    def finish() -> tuple[list, dict[int, str]]:
+        results: list = [None] * len(curves)
+        alone = own
+        if launched is not None:
+            try:
+                fitted = launched()
+            except ValueError:
+                alone = sorted(own + shared)  # as above, found only when the fits ended
+            else:
+                for i, result in zip(shared, fitted, strict=True):
+                    results[i] = result
+        refused: dict[int, str] = {}
+        for i in alone:
+            try:
+                results[i] = fit(plan_model(plan, inlets[i]), curves[i], settings, **options)
+            except ValueError as error:  # this curve is listed with its reason, the rest fitted
+                refused[i] = f"curve {curves[i].name!r}: {' '.join(str(error).split())}"
+                results[i] = None
+        return results, refused
+
+    return finish
 
 
 def fit_chunk(plan: StudyPlan, curves: Sequence[Curve],
@@ -236,10 +254,28 @@ def fit_chunk(plan: StudyPlan, curves: Sequence[Curve],
     **Returns:** one :func:`fitting.report.fit_record` per curve, in order; for a curve that
     cannot be fitted, ``{"refused": reason}`` (one line naming the curve).
     """
-    results, refused = _fit_results(plan, curves, inlets)
-    return [{"refused": refused[i]} if i in refused else
-            fit_record(result, None, source=curve.source, length_m=plan.length_m)
-            for i, (result, curve) in enumerate(zip(results, curves, strict=True))]
+    return launch_chunk(plan, curves, inlets)()
+
+
+def launch_chunk(plan: StudyPlan, curves: Sequence[Curve],
+                 inlets: Sequence[Curve | None] | None = None, *, drawn: bool = False
+                 ) -> Callable[[], Any]:
+    """:func:`fit_chunk` (with `drawn`: :func:`fit_chunk_drawn`) started: the chunk's
+    compiled fits run while the caller goes on (it writes the records of the chunk before);
+    the returned function waits for them and gives the task's result."""
+    finish = _launch_results(plan, curves, inlets)
+
+    def records() -> Any:
+        results, refused = finish()
+        rendered = [{"refused": refused[i]} if i in refused else
+                    fit_record(result, None, source=curve.source, length_m=plan.length_m)
+                    for i, (result, curve) in enumerate(zip(results, curves, strict=True))]
+        if not drawn:
+            return rendered
+        return rendered, [None if result is None else render_fit_png(result)
+                          for result in results]
+
+    return records
 
 
 def fit_chunk_drawn(plan: StudyPlan, curves: Sequence[Curve],
@@ -251,12 +287,7 @@ def fit_chunk_drawn(plan: StudyPlan, curves: Sequence[Curve],
 
     **Returns:** ``(records, images)``, both in the curves' order.
     """
-    results, refused = _fit_results(plan, curves, inlets)
-    records = [{"refused": refused[i]} if i in refused else
-               fit_record(result, None, source=curve.source, length_m=plan.length_m)
-               for i, (result, curve) in enumerate(zip(results, curves, strict=True))]
-    images = [None if result is None else render_fit_png(result) for result in results]
-    return records, images
+    return launch_chunk(plan, curves, inlets, drawn=True)()
 
 
 def study_table(rows: Sequence[Mapping[str, Any]], factors: Sequence[str]
@@ -603,7 +634,8 @@ class StudyRun:
             task = fit_chunk_drawn if self.plots else fit_chunk
             map_chunks(task, ((indices, self._task(indices)) for indices in self._chunks()),
                        workers, scheduler, stop, finished,
-                       threads=default_threads() if threads is None else threads)
+                       threads=default_threads() if threads is None else threads,
+                       launch=functools.partial(launch_chunk, drawn=self.plots))
         finally:
             bar.close()
         if not stop():
@@ -638,7 +670,8 @@ def default_threads() -> int:
 
 def map_chunks(task: Callable, chunks: Iterator[tuple[Any, tuple]], workers: int | None,
                scheduler: str | None, stop: Callable[[], bool],
-               finished: Callable[[Any, Any], None], *, threads: int = 1) -> None:
+               finished: Callable[[Any, Any], None], *, threads: int = 1,
+               launch: Callable | None = None) -> None:
     """Run a task on each chunk, in this process or on Dask, handing on each result.
 
     **Arguments:**
@@ -655,15 +688,31 @@ def map_chunks(task: Callable, chunks: Iterator[tuple[Any, tuple]], workers: int
     - `threads`: in this process, chunks run side by side on this many threads (the task
       must be thread-safe and its result independent of the thread; :func:`fit_chunk` is);
       1: one after another.
+    - `launch`: in this process on one thread, ``launch(*arguments)`` starts a chunk and
+      returns the function that finishes it (``launch(*a)()`` is ``task(*a)``): the next
+      chunk is started before the last is finished and handed on, so that work of the
+      task that runs without Python's lock (compiled programs) overlaps the rest.
 
     **Returns:** ``None``; a task's exception is raised here.
     """
     if workers is None and scheduler is None:
         if threads <= 1:
+            start = launch or (lambda *arguments: functools.partial(task, *arguments))
+            begun = None
             for key, arguments in chunks:
                 if stop():
-                    return
-                finished(key, task(*arguments))
+                    break
+                try:
+                    following = (key, start(*arguments))
+                except BaseException:
+                    if begun is not None:  # what was fitted is handed on before the error
+                        finished(begun[0], begun[1]())
+                    raise
+                if begun is not None:
+                    finished(begun[0], begun[1]())
+                begun = following
+            if begun is not None:  # a begun chunk is finished and handed on, stopped or not
+                finished(begun[0], begun[1]())
             return
         _map_on_threads(task, chunks, stop, finished, threads)
         return
