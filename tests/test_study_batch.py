@@ -229,6 +229,24 @@ def test_interrupted_study_resumes_without_losing_or_repeating_curves(long_csv, 
         assert record["physical"] == alone["physical"]
 
 
+def test_summary_json_holds_each_record_as_written_anew_would(long_csv, tmp_path):
+    # summary.json copies each curve's record from its journal line (not read and written
+    # anew): the text must be what writing the record read back gives, factors included.
+    study = read_long_csv(long_csv, "run")
+    run = StudyRun(StudyPlan("adm", length_m=LENGTH_M), study, tmp_path, chunk=3)
+    assert run.run(progress=False) == len(study)
+    text = (tmp_path / "summary.json").read_text()
+    records = list(run.records())
+    assert [r["factors"] for r in records] == [{"rpm": 20, "angle": "up"},
+                                               {"rpm": 40, "angle": "up"},
+                                               {"rpm": 20, "angle": "down"},
+                                               {"rpm": 40, "angle": "down"}]
+    for count, record in enumerate(records):
+        after = ",\n" if count < len(records) - 1 else "\n  ]"
+        assert "\n" + json.dumps(record, allow_nan=False) + after in text
+    assert json.loads(text)["curves"] == records
+
+
 def test_a_folder_of_another_study_is_not_continued(long_csv, tmp_path):
     study = read_long_csv(long_csv, "run")
     StudyRun(StudyPlan("adm"), study, tmp_path, chunk=2)
