@@ -36,6 +36,7 @@ import functools
 import math
 import threading
 import time as _time
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import jax
@@ -609,14 +610,23 @@ class LaunchedChunk:
     compile_seconds: float
     started: float
 
+    def parts(self) -> Iterator[tuple[dict, float]]:
+        """Each program's outputs as it finishes, in order: ``(outputs as NumPy arrays with
+        a leading curve axis, seconds from the start, or the part before's collection, to
+        this one's)``. The caller's work on one part overlaps the programs after it."""
+        since = self.started
+        for out, used in self.outputs:
+            part = jax.tree.map(lambda a, used=used: a[:used], jax.device_get(out))
+            now = _time.perf_counter()
+            yield part, now - since
+            since = now
+
     def collect(self) -> tuple[dict, float, float]:
         """Wait for the programs: ``(outputs as NumPy arrays with a leading curve axis,
         seconds from the start to the last output, compile or load seconds)``."""
-        parts = [jax.tree.map(lambda a, used=used: a[:used], jax.device_get(out))
-                 for out, used in self.outputs]
-        run_seconds = _time.perf_counter() - self.started
-        merged = jax.tree.map(lambda *arrays: np.concatenate(arrays), *parts)
-        return merged, run_seconds, self.compile_seconds
+        parts = list(self.parts())
+        merged = jax.tree.map(lambda *arrays: np.concatenate(arrays), *(p for p, _ in parts))
+        return merged, sum(seconds for _, seconds in parts), self.compile_seconds
 
 
 def launch_chunk_arrays(model, layout: Layout, options: SolverPlan, errors: ErrorPlan, starts,

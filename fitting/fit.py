@@ -596,15 +596,20 @@ def _launch_batch(model, curves, params, weights, settings: FitSettings
         results: list[FitResult | None] = [None] * len(curves)
         polish: list[int] = []
         for members, chunk in launched:
-            out, wall, compile_time = chunk.collect()
-            share, compile_share = wall / len(members), compile_time / len(members)
-            for row, i in enumerate(members):
-                lane = jax.tree.map(lambda a, row=row: a[row], out)
-                result = _engine_result(prepared[i], lane, shared, share, compile_share)
-                if result is None:
-                    polish.append(i)
-                else:
-                    results[i] = result
+            compile_share = chunk.compile_seconds / len(members)
+            begin = 0
+            # Program by program: the results of one are made while the next runs.
+            for out, wall in chunk.parts():
+                part = members[begin:begin + len(out["polish_first"])]
+                begin += len(part)
+                for row, i in enumerate(part):
+                    lane = jax.tree.map(lambda a, row=row: a[row], out)
+                    result = _engine_result(prepared[i], lane, shared, wall / len(part),
+                                            compile_share)
+                    if result is None:
+                        polish.append(i)
+                    else:
+                        results[i] = result
         # Curves the multi-start solver polishes, each alone (so that its path and numbers
         # are the same in every chunk).
         for i in sorted(polish):
