@@ -174,6 +174,35 @@ def test_a_study_with_plots_draws_each_curve_as_a_single_file_fit_is(tmp_path, c
     assert status == 2 and "--plots" in err and len(err.strip().splitlines()) == 1, err
 
 
+def test_a_study_without_curve_files_holds_the_same_records_in_its_summary(tmp_path, capsys):
+    import json
+
+    long = _long_table(tmp_path / "long.csv")
+    common = ["fit", str(long), "--curve-column", "curve", "--model", "adm"]
+    assert main([*common, "--out", str(tmp_path / "files")]) == 0
+    assert main([*common, "--no-curve-files", "--out", str(tmp_path / "none")]) == 0
+    capsys.readouterr()
+    assert not (tmp_path / "none" / "curves").exists()
+    assert len(list((tmp_path / "files" / "curves").glob("*.json"))) == len(FILES)
+
+    def fitted(folder):
+        records = json.loads((tmp_path / folder / "summary.json").read_text())["curves"]
+        return [{k: v for k, v in r.items() if k != "wall_time"} for r in records]
+
+    assert fitted("none") == fitted("files")
+    # funnel takes a curve of the summary by --curve.
+    assert main(["funnel", "--model", str(tmp_path / "none" / "summary.json"), "--curve",
+                 FILES[0].stem, "--durations", "1,5", "--magnitudes", "10,30"]) == 0
+    # Continued with curve files, the folder would hold some curves' files only: refused.
+    status = main([*common, "--out", str(tmp_path / "none")])
+    err = capsys.readouterr().err
+    assert status == 2 and "--no-curve-files" in err and len(err.strip().splitlines()) == 1
+    # A single file writes its record as its result: the option is refused there.
+    status = main(["fit", str(FILES[0]), "--no-curve-files", "--out", str(tmp_path / "one")])
+    err = capsys.readouterr().err
+    assert status == 2 and "study's option" in err and not (tmp_path / "one").exists()
+
+
 def test_profile_intervals_through_the_command_line(tmp_path, capsys):
     import json
 

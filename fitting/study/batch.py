@@ -320,18 +320,25 @@ class StudyRun:
     - `plots`: also draw each fitted curve's PNG (``curves/<curve>.png``, the figure of a
       single file's fit), written before the curve's record is journaled, so every curve
       the journal holds has its PNG.
+    - `curve_files`: write each fitted curve's record as ``curves/<curve>.json`` too
+      (``summary.json`` holds every record either way; ``funnel`` and ``divert`` take a
+      curve of it by ``--curve``). Creating a file per curve is a third of a study's time
+      on some disks: a study of many curves may leave them out.
 
     Opening a folder whose journal describes another study or other settings (``plots``
-    included: a resumed run draws all of its curves or none) is a one-line
+    and ``curve_files`` included: a resumed run draws or files all of its curves or none)
+    is a one-line
     ``ValueError``. :attr:`lock` is held while results are appended and summaries written
     (a caller handling Ctrl-C takes it before writing the summary itself).
     """
 
     def __init__(self, plan: StudyPlan, study: Study, folder: str | Path,
-                 chunk: int = DEFAULT_CHUNK, *, plots: bool = False):
+                 chunk: int = DEFAULT_CHUNK, *, plots: bool = False,
+                 curve_files: bool = True):
         if chunk < 1:
             raise ValueError(f"chunk must be at least 1 curve, got {chunk}")
         self.plan, self.study, self.chunk, self.plots = plan, study, int(chunk), bool(plots)
+        self.curve_files = bool(curve_files)
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.journal = self.folder / JOURNAL_NAME
@@ -341,7 +348,7 @@ class StudyRun:
         self.lock = threading.Lock()
         self.header = {"study": study.source, "digest": study.digest(), "n_curves": len(study),
                        "factors": list(study.factors), "plan": plan.describe(),
-                       "plots": self.plots}
+                       "plots": self.plots, "curve_files": self.curve_files}
         #: Each curve's file name stem in ``curves/`` (:meth:`stem`): :func:`curve_file_stem`,
         #: with the study position appended to a stem an earlier curve took; only those
         #: renamed stems are kept, by study position.
@@ -421,6 +428,12 @@ class StudyRun:
             raise ValueError(f"{self.journal}: holds a study fitted {earlier} --plots; continue "
                              f"it {earlier} --plots (so that every curve has its PNG or none "
                              "has), or choose another --out folder")
+        if bool(header.get("curve_files", True)) != self.curve_files:
+            earlier = "without" if header.get("curve_files", True) else "with"
+            raise ValueError(f"{self.journal}: holds a study fitted {earlier} "
+                             f"--no-curve-files; continue it {earlier} --no-curve-files (so "
+                             "that every curve has its record file or none has), or choose "
+                             "another --out folder")
         index = {name: i for i, name in enumerate(self.study.ids)}
         offset = len(lines[0]) + 1
         for line in lines[1:-1]:
@@ -462,20 +475,22 @@ class StudyRun:
         # The curves' record files are written by a thread of their own (creating a file
         # can take a millisecond on a busy disk, time the fits need not wait for); the
         # summary waits for them, and a resumed run rewrites every earlier curve's file.
-        folder = self.folder / CURVE_FOLDER
-        folder.mkdir(exist_ok=True)
-        files = [(folder / f"{self.stem(i)}.json", self._curve_record(row))
-                 for i, row in zip(indices, rows, strict=True)]
-        def write_files() -> None:
-            for path, record in files:
-                write_json(path, record)
+        if self.curve_files:
+            folder = self.folder / CURVE_FOLDER
+            folder.mkdir(exist_ok=True)
+            files = [(folder / f"{self.stem(i)}.json", self._curve_record(row))
+                     for i, row in zip(indices, rows, strict=True)]
 
-        # Finished writes are let go (a write's error is raised here, at the next chunk):
-        # what a study holds does not grow with its chunks.
-        for write in [w for w in self._file_writes if w.done()]:
-            self._file_writes.remove(write)
-            write.result()
-        self._file_writes.append(self._writer.submit(write_files))
+            def write_files() -> None:
+                for path, record in files:
+                    write_json(path, record)
+
+            # Finished writes are let go (a write's error is raised here, at the next
+            # chunk): what a study holds does not grow with its chunks.
+            for write in [w for w in self._file_writes if w.done()]:
+                self._file_writes.remove(write)
+                write.result()
+            self._file_writes.append(self._writer.submit(write_files))
         with self.lock:
             handle = os.open(self.journal, os.O_WRONLY | os.O_APPEND)
             try:
@@ -589,6 +604,8 @@ class StudyRun:
         writes, self._file_writes = self._file_writes, []
         for write in writes:
             write.result()  # raises what a write raised
+        if not self.curve_files:
+            return
         folder = self.folder / CURVE_FOLDER
         folder.mkdir(exist_ok=True)
         positions = np.flatnonzero((self._finished[:, 0] >= 0) & ~self._filed)

@@ -83,7 +83,8 @@ would be, in chunks of ``--chunk`` curves (default 64), and ``DIR/summary.csv`` 
 95 % interval (units in the column names), v and D_z with ``--length``, the error model,
 convergence and the lack-of-fit verdict, and ``DIR/curves/<curve>.json`` holds each curve's
 full record (what ``funnel --model`` and ``divert --model`` read), with ``--plots`` beside
-its PNG ``DIR/curves/<curve>.png`` (drawn as a single file's is). Finished
+its PNG ``DIR/curves/<curve>.png`` (drawn as a single file's is); ``--no-curve-files``
+leaves the record files out (``summary.json`` holds them all). Finished
 chunks are appended to ``DIR/summary.jsonl``; the same command run again after Ctrl-C or a
 kill fits only the curves not yet in it. ``--workers N`` fits on a local Dask cluster of N
 processes, ``--scheduler ADDRESS`` on a running one, with the same results. A study fits one
@@ -209,6 +210,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     study.add_argument("--plots", action="store_true",
                        help="also draw each curve's fit as DIR/curves/<curve>.png (single "
                        "files and folders always get their PNGs)")
+    study.add_argument("--no-curve-files", action="store_true",
+                       help="write no DIR/curves/<curve>.json (summary.json holds every "
+                       "curve's record; funnel and divert take one by --curve): a file per "
+                       "curve costs time, a third of a study's on some disks")
     parser.add_argument("--out", required=True, metavar="DIR", help="folder for the results")
     parser.set_defaults(func=run)
     return parser

@@ -84,6 +84,10 @@ def run_fit(args: argparse.Namespace) -> int:
                                  "files or folders (not on a study, a model comparison or "
                                  "--loss mae)")
             profile_names(args.profile, models[0], every_settings[0])
+        if args.no_curve_files and not is_study(args):
+            raise InputError("--no-curve-files is a study's option (with --curve-column, "
+                             "--design, --chunk, --workers or --scheduler): single files and "
+                             "folders write each curve's record as their result")
         if is_study(args):
             return run_study(args, files, models, every_settings, free, out)
         curves = read_curves(files, args)

@@ -117,7 +117,8 @@ def run_study(args: argparse.Namespace, files: Sequence[Path], models, every_set
     lock = FolderLock(out)
     lock.acquire()
     try:
-        run = StudyRun(plan, study, out, chunk, plots=args.plots)
+        run = StudyRun(plan, study, out, chunk, plots=args.plots,
+                       curve_files=not args.no_curve_files)
     except ValueError as error:
         lock.release()
         raise InputError(str(error)) from None
