@@ -11,8 +11,14 @@ the records and summary written to a temporary folder):
   first: curves of every padded length, and 256 curves drawn apart from the study's, among
   them some the engine hands to the multi-start solver's path): on its default threads (two
   chunks in flight on 2 cores, :func:`fitting.study.batch.default_threads`: one chunk's
-  compiled fit overlaps the other's Python) and on one thread, with the same records; and
-  once more with absolute errors (one unweighted fit a curve, the peers' error model);
+  compiled fit overlaps the other's Python) and on one thread (which starts each chunk's
+  compiled fits before it writes the records of the chunk before), with the same records;
+  once more with absolute errors (one unweighted fit a curve, the peers' error model); and
+  on one thread without the per-curve record files (``--no-curve-files``: the journal and
+  summaries hold every record);
+* ``fitting.fit.fit_many`` on the first ``--subset`` curves in one call, as a Python user
+  fits many curves and as the peers do (values and intervals, no records or files), with the
+  combined error model and with absolute errors, timed after a warm-up call;
 * on a local Dask cluster of two worker processes
   (:func:`fitting.study.batch.local_cluster`, as ``axialmix fit --workers 2`` makes), timed
   after each worker has fitted the warm-up chunk (the cluster's start is shown apart);
@@ -30,9 +36,10 @@ the study; if it is off by more than 1e-8 of the curve's peak anywhere, the benc
 
 The table gives curves per second and the ratio to the one-process run, the median and
 95th-percentile relative errors of tau and Pe, and interval coverage (share of curves whose
-95 % interval holds the true value); the last line gives the ratios the targets are stated
-in. Run with ``nice``: it loads every core it is given. The studies write their output
-folders (temporary) into the current folder, as ``axialmix fit --out`` would.
+95 % interval holds the true value); the last lines give the ratios the targets are stated
+in, for each of our ways. Run with ``nice``: it loads every core it is given. The studies
+write their output folders (temporary) into the current folder, as ``axialmix fit --out``
+would.
 
     python benchmarks/study.py [--curves 10000] [--dask-curves N] [--subset 2000] [--chunk 64]
                                [--workers 2]
@@ -137,17 +144,44 @@ def _warm_up_others() -> tuple:
     return others.curves
 
 
-def run_one_process(plan, study, threads=None):
+def run_one_process(plan, study, threads=None, curve_files=True):
     from fitting.study.batch import StudyRun, fit_chunk
 
     fit_chunk(plan, warm_curves(study))
     with tempfile.TemporaryDirectory(dir=SCRATCH) as folder:
-        run = StudyRun(plan, study, folder, CHUNK)
+        run = StudyRun(plan, study, folder, CHUNK, curve_files=curve_files)
         began = time.perf_counter()
         run.run(progress=False, threads=threads)
         seconds = time.perf_counter() - began
         records = list(run.records())
     return seconds, records
+
+
+def run_fit_many(plan, curves):
+    """``fitting.fit.fit_many`` on the curves in one call, as a Python user fits many curves
+    (the study's model, settings and error model; no records or files): seconds after a
+    warm-up call, and each curve's tau and Pe with their 95 % intervals."""
+    from fitting.fit import fit_many
+    from fitting.solve import MultiStart
+    from fitting.study.batch import plan_model
+
+    options = dict(loss="sse", errors=plan.errors, multistart=MultiStart(n_starts=plan.starts))
+    model, settings = plan_model(plan), dict(plan.parameters)
+    fit_many(model, warm_curves(_Curves(curves)), settings, **options)
+    began = time.perf_counter()
+    results = fit_many(model, list(curves), settings, **options)
+    seconds = time.perf_counter() - began
+    estimates = np.array([[r.values["tau"], r.values["peclet"]] for r in results], float)
+    intervals = np.array([[r.ci95["tau"] or (np.nan, np.nan),
+                           r.ci95["peclet"] or (np.nan, np.nan)] for r in results], float)
+    return seconds, estimates, intervals
+
+
+class _Curves:
+    """Curves as a study's ``curves`` (what :func:`warm_curves` reads)."""
+
+    def __init__(self, curves):
+        self.curves = tuple(curves)
 
 
 def run_dask(plan, study, workers: int):
@@ -366,16 +400,26 @@ def main() -> None:
                 + "  (the peers' error model)")
     print(rows[-1], flush=True)
 
-    subset = min(args.subset, args.curves)
-    head = accuracy(tau[:subset], peclet[:subset], *ours(study, records[:subset]))
-    rows.append(line(f"axialmix, same {subset} curves", subset,
-                     sum(r["wall_time"] for r in records[:subset]), unit, head)
-                + "  (fit time only)")
+    seconds, bare = run_one_process(plan, study, threads=1, curve_files=False)
+    rates["no files"] = args.curves / seconds
+    rows.append(line("axialmix, no curve files (1 thr.)", args.curves, seconds, unit,
+                     accuracy(tau, peclet, *ours(study, bare)))
+                + "  (--no-curve-files)")
     print(rows[-1], flush=True)
-    head = accuracy(tau[:subset], peclet[:subset], *ours(study, plain[:subset]))
-    rows.append(line(f"axialmix, absolute, same {subset}", subset,
-                     sum(r["wall_time"] for r in plain[:subset]), unit, head)
-                + "  (fit time only; the peers' error model)")
+
+    subset = min(args.subset, args.curves)
+    curves = study.curves[:subset]
+    seconds, estimates, intervals = run_fit_many(plan, curves)
+    rates["fit_many"] = subset / seconds
+    rows.append(line(f"axialmix fit_many, same {subset}", subset, seconds, unit,
+                     accuracy(tau[:subset], peclet[:subset], estimates, intervals))
+                + "  (values and intervals, as the peers)")
+    print(rows[-1], flush=True)
+    seconds, estimates, intervals = run_fit_many(absolute, curves)
+    rates["fit_many absolute"] = subset / seconds
+    rows.append(line(f"axialmix fit_many, absolute, {subset}", subset, seconds, unit,
+                     accuracy(tau[:subset], peclet[:subset], estimates, intervals))
+                + "  (the peers' error model and outputs)")
     print(rows[-1], flush=True)
 
     seconds, estimates, intervals = run_scipy(study, subset)
@@ -414,9 +458,14 @@ def main() -> None:
     print("-" * len(header))
     print("\n".join(rows))
     print(f"load average after: {os.getloadavg()[0]:.2f}")
-    print(f"ours {rates['ours']:.1f} curves/s: {rates['ours'] / rates['scipy']:.2f} x the scipy "
-          f"loop, {rates['ours'] / rates['pool']:.2f} x the {args.workers}-process pool; Dask "
-          f"{args.workers} workers {rates['dask'] / rates['ours']:.2f} x one process"
+    for name, label in (("ours", "study run (records and files)"),
+                        ("no files", "study run without curve files"),
+                        ("fit_many", "fit_many, combined errors"),
+                        ("fit_many absolute", "fit_many, the peers' error model")):
+        print(f"{label:<38} {rates[name]:7.1f} curves/s: {rates[name] / rates['scipy']:5.2f} x "
+              f"the scipy loop, {rates[name] / rates['pool']:5.2f} x the {args.workers}-process "
+              "pool")
+    print(f"Dask {args.workers} workers {rates['dask'] / rates['ours']:.2f} x one process"
           + (f", {rates['dask'] / rates['one thread']:.2f} x one thread"
              if "one thread" in rates else ""))
 
