@@ -9,13 +9,12 @@ the records and summary written to a temporary folder):
 
 * in one process, timed after the solver programs have been compiled (a warm-up chunk comes
   first: curves of every padded length, and 256 curves drawn apart from the study's, among
-  them some the engine hands to the multi-start solver's path): on its default threads (two
-  chunks in flight on 2 cores, :func:`fitting.study.batch.default_threads`: one chunk's
-  compiled fit overlaps the other's Python) and on one thread (which starts each chunk's
-  compiled fits before it writes the records of the chunk before), with the same records;
-  once more with absolute errors (one unweighted fit a curve, the peers' error model); and
-  on one thread without the per-curve record files (``--no-curve-files``: the journal and
-  summaries hold every record);
+  them some the engine hands to the multi-start solver's path): as ``axialmix fit`` runs it
+  (one thread, which starts each chunk's compiled fits before it writes the records of the
+  chunk before, :func:`fitting.study.batch.default_threads`) and on two threads, each
+  fitting and writing chunks of its own, with the same records; once more with absolute
+  errors (one unweighted fit a curve, the peers' error model); and without the per-curve
+  record files (``--no-curve-files``: the journal and summaries hold every record);
 * ``fitting.fit.fit_many`` on the first ``--subset`` curves in one call, as a Python user
   fits many curves and as the peers do (values and intervals, no records or files), with the
   combined error model and with absolute errors, timed after a warm-up call;
@@ -363,7 +362,7 @@ def main() -> None:
     args = parser.parse_args()
     CHUNK = args.chunk
     from fitting.solve import enable_compilation_cache
-    from fitting.study.batch import StudyPlan, default_threads
+    from fitting.study.batch import StudyPlan
 
     enable_compilation_cache()
     print(f"{os.cpu_count()} CPUs; load average before: {os.getloadavg()[0]:.2f}", flush=True)
@@ -375,34 +374,31 @@ def main() -> None:
               f"{'cov Pe':>8}")
     rows = []
 
-    threads = default_threads()
     seconds, records = run_one_process(plan, study)
     figures = accuracy(tau, peclet, *ours(study, records))
     unit = args.curves / seconds
     rates = {"ours": unit}
-    rows.append(line(f"axialmix, one process ({threads} threads)", args.curves, seconds, unit,
-                     figures))
+    rows.append(line("axialmix study, one process", args.curves, seconds, unit, figures))
     converged = np.mean([r["converged"] for r in records])
     print(rows[-1], f"(converged {converged:.1%})", flush=True)
-    if threads > 1:
-        seconds, single = run_one_process(plan, study, threads=1)
-        same = all(a["parameters"] == b["parameters"] for a, b in
-                   zip(records, single, strict=True))
-        rates["one thread"] = args.curves / seconds
-        rows.append(line("axialmix, one process (1 thread)", args.curves, seconds, unit,
-                         accuracy(tau, peclet, *ours(study, single)))
-                    + f"  (parameters equal: {same})")
-        print(rows[-1], flush=True)
+    seconds, other = run_one_process(plan, study, threads=2)
+    same = all(a["parameters"] == b["parameters"] for a, b in
+               zip(records, other, strict=True))
+    rates["two threads"] = args.curves / seconds
+    rows.append(line("axialmix study, 2 threads", args.curves, seconds, unit,
+                     accuracy(tau, peclet, *ours(study, other)))
+                + f"  (parameters equal: {same})")
+    print(rows[-1], flush=True)
     absolute = StudyPlan("adm", errors="absolute")
     seconds, plain = run_one_process(absolute, study)
-    rows.append(line(f"axialmix, absolute errors ({threads} thr.)", args.curves, seconds, unit,
+    rows.append(line("axialmix study, absolute errors", args.curves, seconds, unit,
                      accuracy(tau, peclet, *ours(study, plain)))
                 + "  (the peers' error model)")
     print(rows[-1], flush=True)
 
-    seconds, bare = run_one_process(plan, study, threads=1, curve_files=False)
+    seconds, bare = run_one_process(plan, study, curve_files=False)
     rates["no files"] = args.curves / seconds
-    rows.append(line("axialmix, no curve files (1 thr.)", args.curves, seconds, unit,
+    rows.append(line("axialmix study, no curve files", args.curves, seconds, unit,
                      accuracy(tau, peclet, *ours(study, bare)))
                 + "  (--no-curve-files)")
     print(rows[-1], flush=True)
@@ -445,7 +441,7 @@ def main() -> None:
     rates["dask"] = count / seconds
     same = all(a["parameters"] == b["parameters"] for a, b in
                zip(records[:count], dask_records, strict=True))
-    rows.append(line(f"axialmix, Dask {args.workers} workers", count, seconds, unit,
+    rows.append(line(f"axialmix study, Dask {args.workers} workers", count, seconds, unit,
                      accuracy(tau[:count], peclet[:count], *ours(part, dask_records)))
                 + f"  (+{startup:.1f} s start; parameters equal: {same})")
     print(rows[-1], flush=True)
@@ -465,9 +461,7 @@ def main() -> None:
         print(f"{label:<38} {rates[name]:7.1f} curves/s: {rates[name] / rates['scipy']:5.2f} x "
               f"the scipy loop, {rates[name] / rates['pool']:5.2f} x the {args.workers}-process "
               "pool")
-    print(f"Dask {args.workers} workers {rates['dask'] / rates['ours']:.2f} x one process"
-          + (f", {rates['dask'] / rates['one thread']:.2f} x one thread"
-             if "one thread" in rates else ""))
+    print(f"Dask {args.workers} workers {rates['dask'] / rates['ours']:.2f} x one process")
 
 
 if __name__ == "__main__":

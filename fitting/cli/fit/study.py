@@ -177,8 +177,10 @@ class _StudyExecution(Supervised):
 
                 pending = len(run.pending)
                 at_once = max(1, min(default_threads(), -(-pending // run.chunk)))
+                way = (f"{at_once} at once" if at_once > 1 else
+                       "each started while the last is written")
                 print(f"axialmix fit: {pending} curves in this process, in chunks of "
-                      f"{run.chunk}, {at_once} at once; {describe_device()}",
+                      f"{run.chunk}, {way}; {describe_device()}",
                       file=sys.stderr, flush=True)
             run.run(workers=self.args.workers, scheduler=self.args.scheduler,
                     stop=self.stop.is_set)
