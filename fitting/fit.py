@@ -430,7 +430,7 @@ def fit_many(
     **Returns:**
 
     One :class:`~fitting.result.FitResult` per curve, in order; `wall_time` is each curve's
-    share of the call.
+    share of its program's run (see :class:`~fitting.result.FitResult`).
     """
     return launch_many(model, curves, params, loss=loss, weights=weights, optimiser=optimiser,
                        multistart=multistart, relative_errors=relative_errors,

@@ -144,8 +144,11 @@ class FitResult:
     - `dof`: degrees of freedom of ``sse``, ``n - p`` (not a whole number for relative-error
       fits, where weights capped at the floor count less); `sigma`: ``sqrt(sse / dof)``.
     - `n_evaluations`: objective evaluations (value and gradient), all starts together.
-    - `wall_time`: seconds the compiled solver ran (its share, for :func:`fit_many`);
-      `compile_time`: seconds spent compiling it first (0 when reused).
+    - `wall_time`: seconds the compiled solver ran (for :func:`fit_many`, its share of the
+      time from the start of its program, or the collection of the program before, to the
+      collection of its outputs: where results are built while later programs run, that
+      time includes some of the Python work); `compile_time`: seconds spent compiling it
+      first (0 when reused).
     - `success`: converged with a finite loss; `converged`: a convergence test was met;
       `status` and `message`: which stopping rule ended the fit.
     - `model`, `params` (:class:`Parameters` with fitted values), `curve` (the data, with
