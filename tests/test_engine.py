@@ -80,6 +80,20 @@ def test_a_curve_alone_and_in_chunks_of_any_size_and_order_fits_the_same(errors,
     assert {r.error_model.kind for r in whole} == {errors}
 
 
+def test_results_built_program_by_program_are_those_of_one_program(monkeypatch):
+    # Programs of 4 curves: the results of each are built as it finishes, while the next
+    # ones run; the numbers are those of one program holding every curve.
+    curves = _curves(9)
+    settings = _settings("absolute")
+    whole = _fit_batch(MODEL, curves, None, None, settings)
+    monkeypatch.setitem(engine.CHUNK, "cpu", 4)
+    assert engine.chunk_shape(64) == (1, 4)
+    parts = _fit_batch(MODEL, curves, None, None, settings)
+    assert _relative_gap(whole, parts) <= 1e-10
+    assert [r.name for r in parts] == [c.name for c in curves]
+    assert all(r.wall_time > 0 for r in parts)
+
+
 def test_engine_fits_agree_with_the_multi_start_solver_path():
     """Two implementations of one algorithm (compiled loop, Python passes over per-start
     programs): the same optimum to the passes' own change limit (1e-8) and the error sizes'

@@ -383,3 +383,54 @@ def test_finished_curves_hold_no_memory_of_their_own(long_csv, tmp_path):
     assert rows[0] == {**rows[-1], "curve": rows[0]["curve"]}
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["n_fitted"] == count and len(summary["curves"]) == count
+
+
+def test_one_thread_starts_each_chunk_before_handing_on_the_last():
+    # The in-process runner starts chunk k+1 (its compiled fits run without Python's lock)
+    # before it finishes chunk k; every begun chunk is handed on, in order, also when asked
+    # to stop or when starting the next one fails.
+    from fitting.study.batch import map_chunks
+
+    events = []
+
+    def launch(value):
+        if value == "bad":
+            raise RuntimeError("cannot start")
+        events.append(f"start {value}")
+
+        def finish():
+            events.append(f"finish {value}")
+            return value * 2
+
+        return finish
+
+    def task(value):
+        return launch(value)()
+
+    handed = []
+    map_chunks(task, iter([(i, (i,)) for i in range(3)]), None, None, lambda: False,
+               lambda key, result: handed.append((key, result)), launch=launch)
+    assert events == ["start 0", "start 1", "finish 0", "start 2", "finish 1", "finish 2"]
+    assert handed == [(0, 0), (1, 2), (2, 4)]
+
+    events.clear(), handed.clear()
+    asked = []
+
+    def stop_before_third() -> bool:
+        asked.append(None)
+        return len(asked) > 2
+
+    map_chunks(task, iter([(i, (i,)) for i in range(5)]), None, None, stop_before_third,
+               lambda key, result: handed.append((key, result)), launch=launch)
+    assert handed == [(0, 0), (1, 2)] and events[-1] == "finish 1"
+
+    events.clear(), handed.clear()
+    with pytest.raises(RuntimeError, match="cannot start"):
+        map_chunks(task, iter([(0, (0,)), (1, ("bad",))]), None, None, lambda: False,
+                   lambda key, result: handed.append((key, result)), launch=launch)
+    assert handed == [(0, 0)]
+    # Without `launch`, the task runs chunk by chunk: the same results.
+    handed.clear()
+    map_chunks(task, iter([(i, (i,)) for i in range(3)]), None, None, lambda: False,
+               lambda key, result: handed.append((key, result)))
+    assert handed == [(0, 0), (1, 2), (2, 4)]
