@@ -40,6 +40,7 @@ _PUBLIC = {
     "FitSettings": "fitting.result",
     "RelativeErrors": "fitting.result",
     "fit_many": "fitting.fit",
+    "launch_many": "fitting.fit",
     "identifiability": "fitting.diagnostics",
     "profile_likelihood": "fitting.diagnostics",
     "grid_search": "fitting.gridsearch",
