@@ -15,7 +15,9 @@ is built from. Inside it, ``vmap`` over the curves of:
    is frozen while the others go on);
 3. the Jacobian of the last fit at its end (the uncertainty is then array algebra).
 
-Only arrays cross back to Python, once per chunk. A curve whose first fit or one of whose
+Only arrays cross back to Python, once per chunk. The programs are started without waiting
+for them (:func:`launch_chunk_arrays`): while one runs, the caller builds the results of
+the one before (and a study writes the records of its chunk before). A curve whose first fit or one of whose
 passes needs what the compiled program cannot do — Newton's method on the full Hessian where
 Levenberg–Marquardt stopped on a singular Gauss–Newton curvature (status FLAT), or L-BFGS
 where it crawled (SLOW, MAX_STEPS) — is flagged (``needs_polish``); :mod:`fitting.fit` then
@@ -60,7 +62,7 @@ from fitting.solve import (
 )
 
 __all__ = ["CHUNK", "LANES", "ErrorPlan", "chunk_program", "chunk_shape", "combined_errors",
-           "describe_device", "fit_chunk_arrays", "launch_chunk_arrays", "LaunchedChunk",
+           "describe_device", "launch_chunk_arrays", "LaunchedChunk",
            "leverages"]
 
 
@@ -584,22 +586,6 @@ def _chunk_program(model, layout: Layout, options: SolverPlan, errors: ErrorPlan
 chunk_program.cache_clear = _chunk_program.cache_clear  # the programs dropped, as of any cache
 
 
-def fit_chunk_arrays(model, layout: Layout, options: SolverPlan, errors: ErrorPlan, starts,
-                     warm, base, scale, time, observed, weights) -> tuple[dict, float, float]:
-    """Fit curves of one padded length with the chunk programs, a chunk per call.
-
-    **Arguments:** the model, layout, plan and error model; per curve (leading axis) the
-    starts ``(starts, free)`` in unconstrained coordinates, their warm-up flags, all
-    parameter values (fixed ones used), the scale of unbounded parameters, and the padded
-    times, observed values and weights (zero: a point that does not count).
-
-    **Returns:** ``(outputs as NumPy arrays with a leading curve axis, run seconds, compile
-    or load seconds)``: :func:`launch_chunk_arrays` collected at once.
-    """
-    return launch_chunk_arrays(model, layout, options, errors, starts, warm, base, scale,
-                               time, observed, weights).collect()
-
-
 @dataclass(frozen=True)
 class LaunchedChunk:
     """Chunk programs started on the device and not yet waited for
@@ -621,19 +607,21 @@ class LaunchedChunk:
             yield part, now - since
             since = now
 
-    def collect(self) -> tuple[dict, float, float]:
-        """Wait for the programs: ``(outputs as NumPy arrays with a leading curve axis,
-        seconds from the start to the last output, compile or load seconds)``."""
-        parts = list(self.parts())
-        merged = jax.tree.map(lambda *arrays: np.concatenate(arrays), *(p for p, _ in parts))
-        return merged, sum(seconds for _, seconds in parts), self.compile_seconds
-
 
 def launch_chunk_arrays(model, layout: Layout, options: SolverPlan, errors: ErrorPlan, starts,
                         warm, base, scale, time, observed, weights) -> LaunchedChunk:
-    """Start the chunk programs of :func:`fit_chunk_arrays` (same arguments) and return
-    without waiting for them: JAX runs them while the caller does other work (the records
-    of the chunk before), and :meth:`LaunchedChunk.collect` gives their outputs."""
+    """Start the chunk programs that fit curves of one padded length, a program per chunk of
+    :func:`chunk_shape`'s size, and return without waiting for them: JAX runs them while
+    the caller goes on (with the results of the programs before), and
+    :meth:`LaunchedChunk.parts` gives their outputs as each finishes.
+
+    **Arguments:** the model, layout, plan and error model; per curve (leading axis) the
+    starts ``(starts, free)`` in unconstrained coordinates, their warm-up flags, all
+    parameter values (fixed ones used), the scale of unbounded parameters, and the padded
+    times, observed values and weights (zero: a point that does not count).
+
+    **Returns:** a :class:`LaunchedChunk`.
+    """
     arrays = [np.asarray(a, dtype=dtype) for a, dtype in (
         (starts, float), (warm, bool), (base, float), (scale, float), (time, float),
         (observed, float), (weights, float))]
