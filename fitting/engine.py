@@ -16,14 +16,14 @@ is built from. Inside it, ``vmap`` over the curves of:
 3. the Jacobian of the last fit at its end (the uncertainty is then array algebra).
 
 Only arrays cross back to Python, once per chunk. The programs are started without waiting
-for them (:func:`launch_chunk_arrays`): while one runs, the caller builds the results of
-the one before (and a study writes the records of its chunk before). A curve whose first fit or one of whose
-passes needs what the compiled program cannot do — Newton's method on the full Hessian where
-Levenberg–Marquardt stopped on a singular Gauss–Newton curvature (status FLAT), or L-BFGS
-where it crawled (SLOW, MAX_STEPS) — is flagged (``needs_polish``); :mod:`fitting.fit` then
-fits that curve by the multi-start solver's polishing path. Whether a curve is flagged is a
-property of the curve, never of the chunk it came in, so a curve fitted alone and inside any
-chunk takes the same path and gets the same numbers.
+for them (:func:`launch_chunk_arrays`): while one runs, the caller builds the results of the
+one before (and a study writes the records of its chunk before). A curve whose first fit or
+one of whose passes needs what the compiled program cannot do — Newton's method on the full
+Hessian where Levenberg–Marquardt stopped on a singular Gauss–Newton curvature (status
+FLAT), or L-BFGS where it crawled (SLOW, MAX_STEPS) — is flagged (``needs_polish``);
+:mod:`fitting.fit` then fits that curve by the multi-start solver's polishing path. Whether
+a curve is flagged is a property of the curve, never of the chunk it came in, so a curve
+fitted alone and inside any chunk takes the same path and gets the same numbers.
 
 Unbounded parameters are scaled by a power of ten near their start value
 (:func:`fitting.parameters.make_layout`); here that scale is an argument per curve (the

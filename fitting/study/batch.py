@@ -16,11 +16,14 @@ study around the fits:
   results are held before they are written; afterwards the records stay in the journal and
   their summary-table lines in a temporary file beside it, and memory keeps only where each
   lies (32 bytes a curve): a study's memory is that of its chunks in flight, whatever the
-  number of curves. ``summary.csv`` and ``summary.json`` are streamed from those files.
+  number of curves. ``summary.csv`` and ``summary.json`` are streamed from those files. In
+  this process each chunk's compiled fits are started before the records of the chunk
+  before are made and written (:func:`launch_chunk`), so that the two overlap.
 * **Resumable.** Each finished chunk is appended to the journal ``summary.jsonl`` in the
   output folder (its first line describes the study and the settings; then one JSON line per
   curve) by one ``write`` and ``fsync`` (each curve's record in ``curves/`` is written beside
-  it by a thread of its own, and the summary waits for those files);
+  it by a thread of its own, unless ``curve_files`` is false, and the summary waits for
+  those files);
   ``summary.csv`` is rewritten atomically after the first chunk and then as often as keeps
   its rewriting under a tenth of the run (at most once a second; a table of 100,000 rows
   rewritten after every chunk would cost more than the fits), and always at the end. A run
