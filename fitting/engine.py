@@ -596,15 +596,16 @@ class LaunchedChunk:
     compile_seconds: float
     started: float
 
-    def parts(self) -> Iterator[tuple[dict, float]]:
+    def parts(self) -> Iterator[tuple[dict, int, float]]:
         """Each program's outputs as it finishes, in order: ``(outputs as NumPy arrays with
-        a leading curve axis, seconds from the start, or the part before's collection, to
-        this one's)``. The caller's work on one part overlaps the programs after it."""
+        a leading curve axis, the curves it held, seconds from the start, or the part
+        before's collection, to this one's)``. The caller's work on one part overlaps the
+        programs after it."""
         since = self.started
         for out, used in self.outputs:
             part = jax.tree.map(lambda a, used=used: a[:used], jax.device_get(out))
             now = _time.perf_counter()
-            yield part, now - since
+            yield part, used, now - since
             since = now
 
 

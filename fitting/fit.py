@@ -599,9 +599,9 @@ def _launch_batch(model, curves, params, weights, settings: FitSettings
             compile_share = chunk.compile_seconds / len(members)
             begin = 0
             # Program by program: the results of one are made while the next runs.
-            for out, wall in chunk.parts():
-                part = members[begin:begin + len(out["polish_first"])]
-                begin += len(part)
+            for out, used, wall in chunk.parts():
+                part = members[begin:begin + used]
+                begin += used
                 for row, i in enumerate(part):
                     lane = jax.tree.map(lambda a, row=row: a[row], out)
                     result = _engine_result(prepared[i], lane, shared, wall / len(part),

@@ -190,17 +190,12 @@ def plan_model(plan: StudyPlan, inlet: Curve | None = None) -> Model:
 _CACHE_ENABLED = threading.Event()
 
 
-def _fit_results(plan: StudyPlan, curves: Sequence[Curve],
-                 inlets: Sequence[Curve | None] | None) -> tuple[list, dict[int, str]]:
-    """The fits of a chunk (``None`` for a refused curve) and the refused curves' reasons."""
-    return _launch_results(plan, curves, inlets)()
-
-
 def _launch_results(plan: StudyPlan, curves: Sequence[Curve],
                     inlets: Sequence[Curve | None] | None
                     ) -> Callable[[], tuple[list, dict[int, str]]]:
-    """:func:`_fit_results` started: the chunk's compiled fits run while the caller goes on;
-    the returned function waits for them and gives the fits and the refused curves."""
+    """A chunk's fits started: the compiled fits run while the caller goes on; the returned
+    function waits for them and gives the fits (``None`` for a refused curve) and the
+    refused curves' reasons, by position."""
     if not _CACHE_ENABLED.is_set():
         enable_compilation_cache()
         _CACHE_ENABLED.set()
@@ -511,11 +506,14 @@ class StudyRun:
             if time.monotonic() - self._table_written >= max(1.0, 10.0 * self._table_seconds):
                 self._write_table()
 
+    def _curve_head(self, name: str, levels: Sequence[str]) -> dict[str, Any]:
+        """What a curve's record starts with: its id and its factors' values."""
+        return {"curve": name, "factors": {f: factor_value(v) for f, v in
+                                           zip(self.study.factors, levels, strict=True)}}
+
     def _curve_record(self, row: Mapping[str, Any]) -> dict[str, Any]:
         """A journal row as the record of its curve: its id, its factors, then the fit."""
-        levels = dict(zip(self.study.factors, row["levels"], strict=True))
-        return {"curve": row["curve"],
-                "factors": {f: factor_value(v) for f, v in levels.items()}, **row["record"]}
+        return {**self._curve_head(row["curve"], row["levels"]), **row["record"]}
 
     def records(self, skip: np.ndarray | None = None) -> Iterator[dict[str, Any]]:
         """The finished curves' records (:func:`fitting.report.fit_record`, with ``curve``
@@ -546,9 +544,7 @@ class StudyRun:
                     # Not as this run writes it: read and written anew.
                     yield json.dumps(self._curve_record(json.loads(line)), allow_nan=False)
                     continue
-                factors = dict(zip(self.study.factors, levels, strict=True))
-                front = json.dumps({"curve": name, "factors": {
-                    f: factor_value(v) for f, v in factors.items()}}, allow_nan=False)
+                front = json.dumps(self._curve_head(name, levels), allow_nan=False)
                 yield f"{front[:-1]}, {line[len(head):-1]}"
 
     def _write_table(self) -> None:
