@@ -42,6 +42,8 @@ def array_namespace(*values: Any):
     cost NumPy operations instead of JAX dispatches, and stay JAX arrays inside a trace or
     when given JAX arrays.
     """
+    if all(type(v) in _PLAIN_NUMBERS for v in values):
+        return np
     return jnp if any(isinstance(v, jax.Array) for v in values) else np
 
 

@@ -219,7 +219,10 @@ def prepare(model, curve: Curve, params, weights, n_starts: int | None,
                            else merged[n].value for n in layout.free])
     if n_starts is None:
         # The start values, and the moment estimate when it differs from them.
-        same = anchor is None or np.allclose(anchor, start, rtol=1e-9, atol=0.0)
+        # np.allclose(anchor, start, rtol=1e-9, atol=0.0) on a few numbers, in Python.
+        same = anchor is None or all(
+            a == b or abs(a - b) <= 1e-9 * abs(b)
+            for a, b in zip(anchor.tolist(), start.tolist(), strict=True))
         n_starts = 1 if same else 2
     starts, warm = start_points(layout, start, anchor, n_starts, seed)
     return Prepared(model, curve, merged, layout, weights, base, starts, warm)
@@ -233,10 +236,13 @@ def _distinct_starts(prepared: Prepared) -> int:
 def _result(prepared: Prepared, layout: Layout, options: SolverPlan, out: dict,
             wall_time: float, compile_time: float, settings: FitSettings, *,
             method_note: str | None = None,
-            error_model: ErrorEstimate | None = None) -> FitResult:
+            error_model: ErrorEstimate | None = None,
+            absolute_errors: bool = False) -> FitResult:
     """The fit result of one curve from a solver's outputs (`out`, the curve's own samples);
     `method_note` is appended to the method's description and `error_model` is the error
-    model behind the weights (as given, without a result built twice)."""
+    model behind the weights (as given, without a result built twice); `absolute_errors`:
+    an unweighted least-squares fit's model, errors of one size estimated by ``s`` (what
+    :func:`_with_absolute_errors` adds)."""
     curve, merged, weights = prepared.curve, prepared.params, prepared.weights
     n_starts = _distinct_starts(prepared)
     out = {k: np.asarray(v) for k, v in out.items()}
@@ -279,6 +285,8 @@ def _result(prepared: Prepared, layout: Layout, options: SolverPlan, out: dict,
         method = f"{method} ({options.warmup_steps} adam steps first from random starts)"
     if method_note is not None:
         method = f"{method}; {method_note}"
+    if absolute_errors and options.loss == "sse":
+        error_model = ErrorEstimate("absolute", uncertainty.sigma, 0.0)
     extra = {} if error_model is None else {"error_model": error_model}
     return FitResult(
         model=prepared.model, params=fitted, init_params=merged, free_names=layout.free,
@@ -654,13 +662,13 @@ def _engine_result(prepared: Prepared, lane: dict, shared: _EngineShared, wall: 
     layout = prepared.layout
     first_out = _lane_output(lane["first"], n)
 
-    def first_result() -> FitResult:
+    def first_result(absolute_errors: bool = False) -> FitResult:
         return _result(prepared, layout, options, first_out, wall, compile_time,
-                       shared.plain if errors.kind != "absolute" else settings)
+                       shared.plain if errors.kind != "absolute" else settings,
+                       absolute_errors=absolute_errors)
 
     if errors.kind == "absolute":
-        first = first_result()
-        return first if shared.weighted else _with_absolute_errors(first)
+        return first_result(absolute_errors=not shared.weighted)
     if errors.kind == "combined":
         # The unweighted fit's verdict decides whether the error model can be estimated;
         # its whole result is built only where it is kept (the verdict of the result that

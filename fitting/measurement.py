@@ -50,6 +50,7 @@ import axialmix  # noqa: F401  (float64 before any JAX array is made)
 from axialmix.analytic import unverified_parameters
 from fitting.data import Curve
 from fitting.models import Model, get_model
+from fitting.models.moments import trapezoid
 from fitting.parameters import Parameter
 
 __all__ = [
@@ -266,18 +267,19 @@ def _initial_guess(base: Model, inlet: Inlet, free: tuple[str, ...]):
             if abs(baseline) < 1e-3 * peak:
                 baseline = 1e-3 * peak  # a start away from 0 gives the optimiser its scale
         signal = value - baseline
+        step = time[1:] - time[:-1]
         if inlet.kind == "step":
             # The derivative of an F-curve is the density whose moments start the model.
             density = np.clip(np.gradient(signal, time), 0.0, None)
             amplitude = float(np.max(signal))
         else:
             density = np.clip(signal, 0.0, None)
-            amplitude = float(np.trapezoid(density, time))
+            amplitude = float(trapezoid(density, step))
         start: dict[str, float] = {}
         if amplitude > 0 and np.any(density > 0):
-            area = float(np.trapezoid(density, time))
-            mean = float(np.trapezoid(time * density, time)) / area
-            variance = float(np.trapezoid((time - mean) ** 2 * density, time)) / area
+            area = float(trapezoid(density, step))
+            mean = float(trapezoid(time * density, step)) / area
+            variance = float(trapezoid((time - mean) ** 2 * density, step)) / area
             inlet_mean, inlet_variance = inlet.moments()
             dead_time = DEAD_TIME_START * mean if "dead_time" in free else 0.0
             # Cumulants add under convolution: take the inlet's mean and variance (and the

@@ -13,7 +13,6 @@ therefore hold exactly and the optimiser never sees a constraint.
 from __future__ import annotations
 
 import ast
-import dataclasses
 import functools
 import math
 import operator
@@ -97,7 +96,12 @@ class Parameter:
 
     def replace(self, **changes: Any) -> Parameter:
         """A copy with some fields changed, e.g. ``p.replace(vary=False)``."""
-        return dataclasses.replace(self, **changes)
+        fields = {"value": self.value, "min": self.min, "max": self.max, "vary": self.vary,
+                  "expr": self.expr}
+        unknown = changes.keys() - fields.keys()
+        if unknown:
+            raise TypeError(f"Parameter has no field {sorted(unknown)[0]!r}")
+        return Parameter(**(fields | changes))
 
 
 class Parameters(dict):

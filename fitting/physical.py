@@ -147,8 +147,11 @@ def physical_quantities(result: FitResult, length: float | None = None
     if result.model.equivalent_adm is None:
         return {}
     unit = result.time_unit
-    layout = make_layout(result.model.name, result.model.parameter_names, result.init_params)
-    tied = [(name, parse_expression(expr)) for name, expr in layout.tied]
+    tied = []
+    if any(setting.expr is not None for setting in result.init_params.values()):
+        layout = make_layout(result.model.name, result.model.parameter_names,
+                             result.init_params)
+        tied = [(name, parse_expression(expr)) for name, expr in layout.tied]
 
     def evaluate(changes: Mapping[str, float]) -> dict[str, float]:
         return hook_numbers(result.model.equivalent_adm(_values_with(result, changes, tied),

@@ -124,9 +124,9 @@ def runs_test(residuals: np.ndarray) -> RunsTest:
     """
     signs = np.sign(np.asarray(residuals, float))
     signs = signs[signs != 0]
-    n1 = int(np.sum(signs > 0))
-    n2 = int(np.sum(signs < 0))
-    runs = int(1 + np.sum(signs[1:] != signs[:-1])) if signs.size else 0
+    n1 = int(np.count_nonzero(signs > 0))
+    n2 = int(np.count_nonzero(signs < 0))
+    runs = int(1 + np.count_nonzero(signs[1:] != signs[:-1])) if signs.size else 0
     if n1 == 0 or n2 == 0:
         return RunsTest(runs, n1, n2, float(runs), 1.0)
     expected = 2.0 * n1 * n2 / (n1 + n2) + 1.0

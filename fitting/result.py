@@ -416,7 +416,10 @@ class FitResult:
         """A JSON-ready summary (plain floats, ``None`` for undefined numbers)."""
 
         def number(x):
-            return float(x) if x is not None and np.isfinite(x) else None
+            if x is None:
+                return None
+            x = float(x)
+            return x if math.isfinite(x) else None
 
         parameters = {}
         for name, value in self.values.items():
@@ -440,7 +443,7 @@ class FitResult:
             "parameters": parameters,
             "correlation": {
                 "names": list(self.free_names),
-                "matrix": [[number(x) for x in row] for row in self.correlation],
+                "matrix": [[number(x) for x in row] for row in self.correlation.tolist()],
             },
             "loss": number(self.loss),
             "loss_name": self.loss_name,

@@ -86,7 +86,11 @@ def _singular(scaled_curvature: np.ndarray, norms: np.ndarray) -> bool:
     """Whether a unit-diagonal curvature (see :func:`_unit_columns`) is numerically singular."""
     if scaled_curvature.size == 0 or not np.all(np.isfinite(scaled_curvature)):
         return True
-    eigenvalues = np.linalg.eigvalsh(scaled_curvature)
+    return _singular_spectrum(np.linalg.eigvalsh(scaled_curvature), norms)
+
+
+def _singular_spectrum(eigenvalues: np.ndarray, norms: np.ndarray) -> bool:
+    """:func:`_singular` from the curvature's eigenvalues."""
     return bool(np.any(norms <= 0) or eigenvalues.max() <= 0
                 or eigenvalues.min() <= SINGULAR_RATIO * eigenvalues.max())
 
@@ -154,11 +158,14 @@ def gauss_newton_uncertainty(
     # C = s² A⁻¹ = (s D) (D A D)⁻¹ (s D), in unit-free column scaling (see _unit_columns).
     columns, norms = _unit_columns(jacobian, weights)
     scaled = columns.T @ columns
-    singular = _singular(scaled, norms)
+    # One eigen-decomposition decides singularity (as :func:`_singular`) and inverts.
+    singular = scaled.size == 0 or not np.all(np.isfinite(scaled))
+    if not singular:
+        eigenvalues, eigenvectors = np.linalg.eigh(scaled)
+        singular = _singular_spectrum(eigenvalues, norms)
     if singular:
         covariance = np.full((n_free, n_free), np.nan)
     else:
-        eigenvalues, eigenvectors = np.linalg.eigh(scaled)
         spread = math.sqrt(variance) / norms if dof > 0 else np.full(n_free, np.nan)
         covariance = (spread[:, None] * ((eigenvectors / eigenvalues) @ eigenvectors.T)
                       * spread[None, :])

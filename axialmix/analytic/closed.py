@@ -174,6 +174,8 @@ def mean_closed(tau: ArrayLike, peclet: ArrayLike) -> jax.Array | np.ndarray:
     """
     require_positive("tau", tau)
     require_positive("peclet", peclet)
+    if type(tau) in (float, int) and type(peclet) in (float, int):
+        return np.asarray(tau, float)  # two numbers broadcast to a 0-d array: no dispatch
     xp = array_namespace(tau, peclet)
     tau, _ = xp.broadcast_arrays(xp.asarray(tau, float), xp.asarray(peclet, float))
     return tau
