@@ -13,8 +13,10 @@ the records and summary written to a temporary folder):
   (one thread, which starts each chunk's compiled fits before it writes the records of the
   chunk before, :func:`fitting.study.batch.default_threads`) and on two threads, each
   fitting and writing chunks of its own, with the same records; once more with absolute
-  errors (one unweighted fit a curve, the peers' error model); and without the per-curve
-  record files (``--no-curve-files``: the journal and summaries hold every record);
+  errors (one unweighted fit a curve, the peers' error model), with and without the
+  per-curve record files; and without the per-curve record files (``--no-curve-files``: the
+  journal and summaries hold every record); the CPU cores the first run kept busy (CPU time
+  over wall time) bound what more processes can add;
 * ``fitting.fit.fit_many`` on the first ``--subset`` curves in one call, as a Python user
   fits many curves and as the peers do (values and intervals, no records or files), with the
   combined error model and with absolute errors, timed after a warm-up call;
@@ -149,10 +151,12 @@ def run_one_process(plan, study, threads=None, curve_files=True):
     fit_chunk(plan, warm_curves(study))
     with tempfile.TemporaryDirectory(dir=SCRATCH) as folder:
         run = StudyRun(plan, study, folder, CHUNK, curve_files=curve_files)
-        began = time.perf_counter()
+        began, cpu = time.perf_counter(), time.process_time()
         run.run(progress=False, threads=threads)
         seconds = time.perf_counter() - began
+        cores = (time.process_time() - cpu) / seconds
         records = list(run.records())
+    run_one_process.cores = cores  # the CPU cores the run kept busy (CPU time over wall time)
     return seconds, records
 
 
@@ -378,6 +382,7 @@ def main() -> None:
     figures = accuracy(tau, peclet, *ours(study, records))
     unit = args.curves / seconds
     rates = {"ours": unit}
+    cores = run_one_process.cores
     rows.append(line("axialmix study, one process", args.curves, seconds, unit, figures))
     converged = np.mean([r["converged"] for r in records])
     print(rows[-1], f"(converged {converged:.1%})", flush=True)
@@ -391,9 +396,16 @@ def main() -> None:
     print(rows[-1], flush=True)
     absolute = StudyPlan("adm", errors="absolute")
     seconds, plain = run_one_process(absolute, study)
+    rates["absolute"] = args.curves / seconds
     rows.append(line("axialmix study, absolute errors", args.curves, seconds, unit,
                      accuracy(tau, peclet, *ours(study, plain)))
                 + "  (the peers' error model)")
+    print(rows[-1], flush=True)
+    seconds, plain = run_one_process(absolute, study, curve_files=False)
+    rates["absolute, no files"] = args.curves / seconds
+    rows.append(line("axialmix study, absolute, no files", args.curves, seconds, unit,
+                     accuracy(tau, peclet, *ours(study, plain)))
+                + "  (the peers' error model, summary only)")
     print(rows[-1], flush=True)
 
     seconds, bare = run_one_process(plan, study, curve_files=False)
@@ -456,12 +468,16 @@ def main() -> None:
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     for name, label in (("ours", "study run (records and files)"),
                         ("no files", "study run without curve files"),
+                        ("absolute", "study run, the peers' error model"),
+                        ("absolute, no files", "  the same without curve files"),
                         ("fit_many", "fit_many, combined errors"),
                         ("fit_many absolute", "fit_many, the peers' error model")):
         print(f"{label:<38} {rates[name]:7.1f} curves/s: {rates[name] / rates['scipy']:5.2f} x "
               f"the scipy loop, {rates[name] / rates['pool']:5.2f} x the {args.workers}-process "
               "pool")
-    print(f"Dask {args.workers} workers {rates['dask'] / rates['ours']:.2f} x one process")
+    print(f"Dask {args.workers} workers {rates['dask'] / rates['ours']:.2f} x one process "
+          f"(the one-process run kept {cores:.2f} of {os.cpu_count()} CPU cores busy: "
+          f"{os.cpu_count() / cores:.2f} x is the most more processes can add)")
 
 
 if __name__ == "__main__":

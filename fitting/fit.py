@@ -37,7 +37,6 @@ import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -611,7 +610,7 @@ def _launch_batch(model, curves, params, weights, settings: FitSettings
                 part = members[begin:begin + used]
                 begin += used
                 for row, i in enumerate(part):
-                    lane = jax.tree.map(lambda a, row=row: a[row], out)
+                    lane = _lane_of(out, row)
                     result = _engine_result(prepared[i], lane, shared, wall / len(part),
                                             compile_share)
                     if result is None:
@@ -627,6 +626,13 @@ def _launch_batch(model, curves, params, weights, settings: FitSettings
         return results
 
     return finish
+
+
+def _lane_of(outputs: dict, row: int) -> dict:
+    """One curve's outputs from a part's (nested dicts of NumPy arrays with a leading curve
+    axis): ``jax.tree.map(lambda a: a[row], outputs)`` without its per-call overhead."""
+    return {key: _lane_of(value, row) if isinstance(value, dict) else value[row]
+            for key, value in outputs.items()}
 
 
 def _lane_output(lane: dict, n: int) -> dict:
