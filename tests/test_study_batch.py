@@ -247,6 +247,32 @@ def test_summary_json_holds_each_record_as_written_anew_would(long_csv, tmp_path
     assert json.loads(text)["curves"] == records
 
 
+def test_a_run_freezes_the_heap_it_found_and_hands_it_back(long_csv, tmp_path):
+    # The objects alive at the start are left out of the collector's scans during the run
+    # (seen from `stop`, called between chunks) and handed back at the end; a caller's own
+    # freeze is left as it is.
+    import gc
+
+    study = read_long_csv(long_csv, "run")
+    seen = []
+
+    def stop() -> bool:
+        seen.append(gc.get_freeze_count())
+        return False
+
+    assert gc.get_freeze_count() == 0
+    StudyRun(StudyPlan("adm"), study, tmp_path / "a", chunk=2).run(progress=False, stop=stop)
+    assert len(seen) >= 3 and min(seen[:-1]) > 0 and seen[-1] == 0  # the last: the summary
+    assert gc.get_freeze_count() == 0
+    gc.freeze()
+    try:
+        StudyRun(StudyPlan("adm"), study, tmp_path / "b", chunk=2).run(progress=False)
+        assert gc.get_freeze_count() > 0  # still the caller's: not handed back by the run
+    finally:
+        gc.unfreeze()
+    assert gc.get_freeze_count() == 0
+
+
 def test_a_folder_of_another_study_is_not_continued(long_csv, tmp_path):
     study = read_long_csv(long_csv, "run")
     StudyRun(StudyPlan("adm"), study, tmp_path, chunk=2)
