@@ -40,6 +40,7 @@ __all__ = [
     "ModelComparison",
     "Profile",
     "compare_models",
+    "has_poorly_determined_combinations",
     "identifiability",
     "lack_of_fit",
     "other_optima",
@@ -110,19 +111,10 @@ class Identifiability:
         return self.summary
 
 
-def identifiability(result: FitResult) -> Identifiability:
-    """Diagnose poorly determined parameter combinations of a fit from its curvature.
-
-    **Arguments:**
-
-    - `result`: a :class:`~fitting.result.FitResult` (least squares).
-
-    **Returns:**
-
-    An :class:`Identifiability`; ``str()`` of it reads like "the data fix ln k_f + ln k_r
-    (±3 %) but not ln k_f - ln k_r (the ratio k_f/k_r): eigenvalue ratio 2e-07, direction
-    (k_f 0.71, k_r -0.70, k_s 0.05), 95 % half-width ±4.1 (factor 60)".
-    """
+def _curvature_spectrum(result: FitResult) -> tuple[np.ndarray, ...]:
+    """The numbers of :func:`identifiability`: which free parameters are on a log scale, the
+    curvature's eigenvalues (descending) and directions, their ratios to the largest, the
+    95 % half-widths, and the indices of the poorly determined combinations."""
     names = result.free_names
     values = np.array([result.values[n] for n in names])
     log_scale = np.array([result.init_params[n].min is not None and result.init_params[n].min
@@ -144,6 +136,30 @@ def identifiability(result: FitResult) -> Identifiability:
                                np.inf)
     poorly = tuple(int(i) for i in range(len(names))
                    if ratios[i] < SINGULAR_RATIO or half_widths[i] > MAX_LOG_HALF_WIDTH)
+    return log_scale, eigenvalues, directions, ratios, half_widths, poorly
+
+
+def has_poorly_determined_combinations(result: FitResult) -> bool:
+    """Whether :func:`identifiability` finds a poorly determined parameter combination (its
+    numbers alone, without the sentences: what a fit's record asks of every curve)."""
+    return bool(_curvature_spectrum(result)[-1])
+
+
+def identifiability(result: FitResult) -> Identifiability:
+    """Diagnose poorly determined parameter combinations of a fit from its curvature.
+
+    **Arguments:**
+
+    - `result`: a :class:`~fitting.result.FitResult` (least squares).
+
+    **Returns:**
+
+    An :class:`Identifiability`; ``str()`` of it reads like "the data fix ln k_f + ln k_r
+    (±3 %) but not ln k_f - ln k_r (the ratio k_f/k_r): eigenvalue ratio 2e-07, direction
+    (k_f 0.71, k_r -0.70, k_s 0.05), 95 % half-width ±4.1 (factor 60)".
+    """
+    names = result.free_names
+    log_scale, eigenvalues, directions, ratios, half_widths, poorly = _curvature_spectrum(result)
 
     def describe(i: int) -> str:
         components = ", ".join(f"{n} {c:+.2f}" for n, c in zip(names, directions[:, i],

@@ -28,7 +28,12 @@ import numpy as np
 
 from axialmix._files import write_atomic, write_csv, write_json
 from axialmix.adm import error_estimate as _fv_error_estimate
-from fitting.diagnostics import ModelComparison, identifiability, other_optima
+from fitting.diagnostics import (
+    ModelComparison,
+    has_poorly_determined_combinations,
+    identifiability,
+    other_optima,
+)
 from fitting.drawing import FigureSpec, draw
 from fitting.gridsearch import GridResult
 from fitting.measurement import MEASUREMENT_PARAMETERS, MeasuredModel
@@ -160,11 +165,10 @@ def identifiability_statements(result: FitResult) -> list[str]:
                     f"{names[i]} and {names[j]} are strongly correlated (r = {r:+.3f}): the "
                     "curve determines a combination of them, not each one."
                 )
-    if len(names) > 1 and result.loss_name == "sse":
-        diagnosis = identifiability(result)
-        if diagnosis.poorly_determined:
-            statements.append(f"Combinations (curvature eigen-analysis, log scale): "
-                              f"{diagnosis.summary}.")
+    if (len(names) > 1 and result.loss_name == "sse"
+            and has_poorly_determined_combinations(result)):
+        statements.append(f"Combinations (curvature eigen-analysis, log scale): "
+                          f"{identifiability(result).summary}.")
     if result.profiled:
         names = ", ".join(result.profiled)
         statements.append(

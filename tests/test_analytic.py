@@ -246,6 +246,13 @@ def test_approximate_peclet_is_the_newton_start_and_within_five_percent():
     assert np.max(np.abs(approximate / peclet - 1)) < 0.05
     outside = analytic.approximate_peclet_from_variance_ratio([0.0, 1.0, 1.5, -0.2])
     assert np.all(np.isnan(outside))
+    # One number (a start value per curve) takes a path without arrays: the same bits.
+    for number in [*ratio.tolist(), 0.5, 0.0, 1.0, 1.5, -0.2, float("nan")]:
+        for given in (number, np.float64(number)):
+            alone = analytic.approximate_peclet_from_variance_ratio(given)
+            assert isinstance(alone, np.ndarray) and alone.shape == ()
+            together = analytic.approximate_peclet_from_variance_ratio(np.array([number]))[0]
+            assert alone.tobytes() == together.tobytes(), number
 
 
 def test_peclet_from_moments_gradient_matches_finite_differences():

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -32,9 +34,14 @@ def _starting_peclet(ratio, xp=jnp):
     The fit has the exact limits ``1 - Pe/3`` (Pe -> 0) and ``2/Pe - 2/Pe²`` (Pe -> ∞); its
     inverse is the positive root of ``r Pe² + (4r - 2) Pe + 6 r - 6 = 0``, written in the form
     without cancellation on each side of r = 1/2. `xp` is the array namespace (``jax.numpy``,
-    or ``numpy`` for :func:`approximate_peclet_from_variance_ratio`).
+    or ``numpy`` for :func:`approximate_peclet_from_variance_ratio`; ``math`` for one number
+    in (0, 1): the same operations on the side that is taken, without selects).
     """
     root = xp.sqrt(1.0 + 2.0 * ratio * (1.0 - ratio))
+    if xp is math:
+        if ratio < 0.5:
+            return ((1.0 - 2.0 * ratio) + root) / ratio
+        return 6.0 * (1.0 - ratio) / (root - (1.0 - 2.0 * ratio))
     low_ratio = ratio < 0.5
     r_low = xp.where(low_ratio, ratio, 0.25)
     r_high = xp.where(low_ratio, 0.75, ratio)
@@ -58,6 +65,9 @@ def approximate_peclet_from_variance_ratio(ratio: ArrayLike) -> np.ndarray:
 
     The approximate Peclet number (dimensionless), a NumPy array of the shape of `ratio`.
     """
+    if type(ratio) is float or type(ratio) is np.float64:  # one number: no array operations
+        return np.asarray(_starting_peclet(float(ratio), math) if 0.0 < ratio < 1.0 else
+                          math.nan)
     ratio = np.asarray(ratio, float)
     valid = (ratio > 0.0) & (ratio < 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -179,7 +179,6 @@ def start_points(
     the anchor (or start) for one-sided bounds, uniform inside two-sided bounds (log-uniform
     when positive and wider than a factor 100), normal around it without bounds.
     """
-    rng = np.random.default_rng(seed)
     u_start = layout.unconstrained_from_physical(start)
     starts = np.tile(u_start, (n_starts, 1))
     first_random = 1
@@ -189,6 +188,7 @@ def start_points(
         starts[1] = centre
         first_random = 2
     count = n_starts - first_random
+    rng = np.random.default_rng(seed) if count > 0 else None  # made only when drawn from
     spread = math.log(10.0)
     for j, kind in enumerate(layout.kinds):
         if count <= 0:
