@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
+from axialmix._heap import long_lived_frozen
 from axialmix.analytic.panels import LONG_CURVE
 from fitting.data import Curve, as_curve
 from fitting.engine import ErrorPlan, launch_chunk_arrays
@@ -439,9 +440,10 @@ def fit_many(
     One :class:`~fitting.result.FitResult` per curve, in order; `wall_time` is each curve's
     share of its program's run (see :class:`~fitting.result.FitResult`).
     """
-    return launch_many(model, curves, params, loss=loss, weights=weights, optimiser=optimiser,
-                       multistart=multistart, relative_errors=relative_errors,
-                       errors=errors)()
+    with long_lived_frozen():  # a long batch: see axialmix._heap
+        return launch_many(model, curves, params, loss=loss, weights=weights,
+                           optimiser=optimiser, multistart=multistart,
+                           relative_errors=relative_errors, errors=errors)()
 
 
 def launch_many(

@@ -47,7 +47,6 @@ import collections
 import concurrent.futures
 import contextlib
 import functools
-import gc
 import json
 import logging
 import math
@@ -64,6 +63,7 @@ import equinox as eqx
 import numpy as np
 
 from axialmix._files import csv_text, write_atomic, write_csv, write_json
+from axialmix._heap import long_lived_frozen
 from axialmix._progress import progress_bar
 from fitting.data import Curve
 from fitting.fit import fit, launch_many
@@ -670,7 +670,7 @@ class StudyRun:
 
         try:
             task = fit_chunk_drawn if self.plots else fit_chunk
-            with _long_lived_frozen():
+            with long_lived_frozen():
                 map_chunks(task, ((indices, self._task(indices)) for indices in self._chunks()),
                            workers, scheduler, stop, finished,
                            threads=default_threads() if threads is None else threads,
@@ -680,24 +680,6 @@ class StudyRun:
         if not stop():
             self.write_summary()
         return count
-
-
-@contextlib.contextmanager
-def _long_lived_frozen() -> Iterator[None]:
-    """The objects alive when a study's run starts (the modules, JAX's caches, the study's
-    curves) left out of the cyclic garbage collector's scans while it runs (``gc.freeze``),
-    then handed back (``gc.unfreeze``). A run makes and drops many small objects per curve;
-    every collection of the oldest generation rescanned the 600,000 objects already there:
-    0.7-1.2 s of a 10,000-curve run (about 10 %), 0.2-0.3 s frozen. Objects a caller froze
-    itself (``gc.get_freeze_count()`` above 0, say before a fork) are left as they are."""
-    if gc.get_freeze_count() > 0:
-        yield
-        return
-    gc.freeze()
-    try:
-        yield
-    finally:
-        gc.unfreeze()
 
 
 #: The sub-folder of a study's output that holds one fit record per curve.
