@@ -219,9 +219,10 @@ def prepare(model, curve: Curve, params, weights, n_starts: int | None,
                            else merged[n].value for n in layout.free])
     if n_starts is None:
         # The start values, and the moment estimate when it differs from them.
-        # np.allclose(anchor, start, rtol=1e-9, atol=0.0) on a few numbers, in Python.
+        # np.allclose(anchor, start, rtol=1e-9, atol=0.0) on a few numbers, in Python (an
+        # infinite or NaN value is close only to an equal one, as there).
         same = anchor is None or all(
-            a == b or abs(a - b) <= 1e-9 * abs(b)
+            a == b or (math.isfinite(a) and math.isfinite(b) and abs(a - b) <= 1e-9 * abs(b))
             for a, b in zip(anchor.tolist(), start.tolist(), strict=True))
         n_starts = 1 if same else 2
     starts, warm = start_points(layout, start, anchor, n_starts, seed)

@@ -274,6 +274,25 @@ def test_registry_and_argument_errors():
         fit("adm", (TIME[:2], np.ones(2)))
     with pytest.raises(ValueError, match="only numbers, parameter names"):
         Parameter(1.0, expr="__import__('os')")
+    # A seed is checked when it is given, whether or not a random start is drawn.
+    for seed in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="seed must be a non-negative integer"):
+            MultiStart(n_starts=1, seed=seed)
+    assert MultiStart(seed=3).seed == 3
+
+
+def test_an_infinite_start_value_keeps_the_moment_estimate_as_a_second_start():
+    # Only an equal number is close to an infinite one (as in np.allclose): the moment
+    # estimate differs from a start of inf, so the fit starts from both.
+    from fitting.data import Curve
+    from fitting.fit import prepare
+
+    curve = Curve(name="c", time=TIME, value=np.asarray(exit_age_closed(TIME, TAU, 5.0)),
+                  time_unit="s")
+    infinite = prepare("adm", curve, {"peclet": Parameter(math.inf, min=0.0)}, None, None, 0)
+    assert infinite.starts.shape[0] == 2
+    # By default the start values are the moment estimates themselves: one start.
+    assert prepare("adm", curve, None, None, None, 0).starts.shape[0] == 1
 
 
 def test_relative_errors_fit_is_weighted_by_its_own_model_curve():

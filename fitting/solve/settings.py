@@ -5,6 +5,7 @@ static plan one compiled solver is built for (:class:`~fitting.solve.SolverPlan`
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -96,6 +97,9 @@ class MultiStart(eqx.Module):
             raise ValueError(f"n_starts must be at least 1, got {self.n_starts}")
         if not self.warmup_steps >= 0:
             raise ValueError(f"warmup_steps must be non-negative, got {self.warmup_steps}")
+        if (isinstance(self.seed, bool) or not isinstance(self.seed, numbers.Integral)
+                or self.seed < 0):
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
 
 
 @dataclass(frozen=True)
