@@ -395,18 +395,15 @@ def main() -> None:
                 + f"  (parameters equal: {same})")
     print(rows[-1], flush=True)
     absolute = StudyPlan("adm", errors="absolute")
-    seconds, plain = run_one_process(absolute, study)
-    rates["absolute"] = args.curves / seconds
-    rows.append(line("axialmix study, absolute errors", args.curves, seconds, unit,
-                     accuracy(tau, peclet, *ours(study, plain)))
-                + "  (the peers' error model)")
-    print(rows[-1], flush=True)
-    seconds, plain = run_one_process(absolute, study, curve_files=False)
-    rates["absolute, no files"] = args.curves / seconds
-    rows.append(line("axialmix study, absolute, no files", args.curves, seconds, unit,
-                     accuracy(tau, peclet, *ours(study, plain)))
-                + "  (the peers' error model, summary only)")
-    print(rows[-1], flush=True)
+    for name, label, files, words in (
+            ("absolute", "absolute errors", True, "the peers' error model"),
+            ("absolute, no files", "absolute, no files", False,
+             "the peers' error model, summary only")):
+        seconds, plain = run_one_process(absolute, study, curve_files=files)
+        rates[name] = args.curves / seconds
+        rows.append(line(f"axialmix study, {label}", args.curves, seconds, unit,
+                         accuracy(tau, peclet, *ours(study, plain))) + f"  ({words})")
+        print(rows[-1], flush=True)
 
     seconds, bare = run_one_process(plan, study, curve_files=False)
     rates["no files"] = args.curves / seconds

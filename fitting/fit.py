@@ -242,8 +242,7 @@ def _result(prepared: Prepared, layout: Layout, options: SolverPlan, out: dict,
     """The fit result of one curve from a solver's outputs (`out`, the curve's own samples);
     `method_note` is appended to the method's description and `error_model` is the error
     model behind the weights (as given, without a result built twice); `absolute_errors`:
-    an unweighted least-squares fit's model, errors of one size estimated by ``s`` (what
-    :func:`_with_absolute_errors` adds)."""
+    an unweighted least-squares fit's model, errors of one size estimated by ``s``."""
     curve, merged, weights = prepared.curve, prepared.params, prepared.weights
     n_starts = _distinct_starts(prepared)
     out = {k: np.asarray(v) for k, v in out.items()}
@@ -400,13 +399,6 @@ def _with_evaluation_check(result: FitResult) -> FitResult:
         message=(f"{result.message}; but the model's interpolated evaluation deviates from the "
                  f"exact one by {largest / peak:.2g} of the peak at the fitted values (more "
                  f"than {EVALUATION_TOLERANCE:g}): these numbers are not the exact model's"))
-
-
-def _with_absolute_errors(result: FitResult) -> FitResult:
-    """An unweighted least-squares fit: errors of one size, estimated by ``s``."""
-    if result.loss_name != "sse":
-        return result
-    return dataclasses.replace(result, error_model=ErrorEstimate("absolute", result.sigma, 0.0))
 
 
 def fit_many(
@@ -817,8 +809,9 @@ def _fit_polished(model, curves, params, weights, settings: FitSettings) -> list
         single["predicted"] = single["predicted"][:n]
         single["jacobian"] = single["jacobian"][:n]
         results.append(_result(p, layout, options, single, share,
-                               compile_time / len(curves), settings))
-    return results if weights is not None else [_with_absolute_errors(r) for r in results]
+                               compile_time / len(curves), settings,
+                               absolute_errors=weights is None))
+    return results
 
 
 def _relative_weights(result: FitResult, loss: str, floor: float) -> np.ndarray:
