@@ -7,18 +7,23 @@ import pytest
 
 import axialmix  # noqa: F401  (float64 for every test)
 
-# Each test process (and the command-line runs it starts) keeps its compiled programs in a
-# cache folder of its own, removed at the end: the suite neither reads nor fills the user's
-# cache, and the two test processes never share one (what processes sharing a cache do is
-# tested on its own, in tests/test_compilation_cache.py).
-_CACHE = tempfile.mkdtemp(prefix=f"axialmix-tests-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-")
+# The suite's processes (the two workers and the command-line runs they start) keep their
+# compiled programs in one cache folder of their own, made by the process that starts the
+# workers and removed by it at the end: the suite neither reads nor fills the user's cache,
+# and a program one process compiled is loaded by the others, as users' processes share
+# theirs (the cache is on by default; the locking of a shared folder is tested on its own,
+# in tests/test_compilation_cache.py). A full suite then spends about a tenth less time
+# compiling. AXIALMIX_COMPILATION_CACHE=off in the environment runs it without the cache.
+_SHARED = "AXIALMIX_TEST_CACHE"
+_OWNER = os.environ.get(_SHARED) is None
+if _OWNER:
+    _CACHE = tempfile.mkdtemp(prefix="axialmix-tests-")
+    os.environ[_SHARED] = _CACHE  # inherited by the workers, which start later
+else:
+    _CACHE = os.environ[_SHARED]
 os.environ["XDG_CACHE_HOME"] = _CACHE
 os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
-# ... and by default none at all (the crashes once blamed on the cache's serialisation were
-# the mapping limit below; without the cache each test process compiles what it runs).
-# Runs with the cache on are tested by tests/test_compilation_cache.py, in processes of
-# their own. AXIALMIX_COMPILATION_CACHE=on in the environment keeps it on.
-os.environ.setdefault("AXIALMIX_COMPILATION_CACHE", "off")
+os.environ.setdefault("AXIALMIX_COMPILATION_CACHE", "on")
 
 
 # Every compiled program keeps a few memory mappings of its machine code (about six), and a
@@ -65,7 +70,9 @@ def _bounded_mappings():
 
 
 def pytest_unconfigure(config):
-    shutil.rmtree(_CACHE, ignore_errors=True)
+    if _OWNER:
+        shutil.rmtree(_CACHE, ignore_errors=True)
+        os.environ.pop(_SHARED, None)
 
 
 def pytest_addoption(parser):
