@@ -13,7 +13,7 @@ import axialmix  # noqa: F401  (float64 for every test)
 # and a program one process compiled is loaded by the others, as users' processes share
 # theirs (the cache is on by default; the locking of a shared folder is tested on its own,
 # in tests/test_compilation_cache.py). In two full runs on the same 2 cores, the tests took
-# 1,775 s summed against 1,987 s with a cache per process (922 s against 1,038 s of wall
+# 1,775 s summed against 1,987 s without the cache (922 s against 1,038 s of wall
 # time). AXIALMIX_COMPILATION_CACHE=off in the environment runs the suite without a cache.
 _SHARED = "AXIALMIX_TEST_CACHE"
 _OWNER = os.environ.get(_SHARED) is None
