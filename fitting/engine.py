@@ -580,7 +580,7 @@ def _chunk_program(model, layout: Layout, options: SolverPlan, errors: ErrorPlan
     layout = dataclasses.replace(layout, scale=(1.0,) * len(layout.free))
     return Program(_chunk_function(model, layout, options, errors, lanes),
                     f"chunk-{model.name}",
-                    export_key(model, layout, options, errors, lanes, "chunk"))
+                    export_key(model, layout, options, errors, lanes, "chunk"), times=5)
 
 
 chunk_program.cache_clear = _chunk_program.cache_clear  # the programs dropped, as of any cache

@@ -41,6 +41,7 @@ from ._presets import (
     v_blender,
     v_blender_species_amounts,
 )
+from ._propagation import regular_grid, traced_time_grid
 from ._responses import (
     compartment_amounts,
     cumulative_exit_age,
@@ -90,6 +91,7 @@ __all__ = [
     "moment_matched_adm",
     "moment_matched_adm_from_moments",
     "outlet_response",
+    "regular_grid",
     "residence_time_moments",
     "scheduled_amounts",
     "scheduled_exit_age",
@@ -97,6 +99,7 @@ __all__ = [
     "species_fractions",
     "step_matrix",
     "tanks_in_series",
+    "traced_time_grid",
     "v_blender",
     "v_blender_species_amounts",
 ]

@@ -19,6 +19,7 @@ import numpy as np
 from jax import export as jax_export
 
 import axialmix  # float64 before any JAX array is made; its version keys the exports
+from axialmix.network import regular_grid, traced_time_grid
 from fitting.models import MODELS
 
 
@@ -138,19 +139,38 @@ class Program:
     the traced program is exported with :mod:`jax.export` to the user's cache folder and run
     from there, so that a later process deserialises it instead of tracing it again; its
     compiled form then comes from JAX's persistent compilation cache.
+
+    With `times` (the position of the argument that holds the curves' times, one row per
+    curve), each program is traced knowing whether those times are all regular grids
+    (:func:`axialmix.network.regular_grid`, said through
+    :func:`axialmix.network.traced_time_grid`): a compartment network then compiles only
+    the propagation its times need, not both. The two programs are kept, and exported,
+    apart.
     """
 
-    def __init__(self, function: Callable, name: str, key: tuple | None):
+    def __init__(self, function: Callable, name: str, key: tuple | None,
+                 times: int | None = None):
         self.function = jax.jit(function)
         self.name = name
         self.key = key
+        self.times = times
         self.executables: dict = {}
         self._compiling = threading.Lock()
+        self._on_grid: dict[bool, Callable] = {}
+        if times is not None:
+            for regular in (False, True):
+                def on_grid(*arguments, regular=regular):
+                    with traced_time_grid(regular):
+                        return function(*arguments)
+
+                self._on_grid[regular] = jax.jit(on_grid)
 
     def executable(self, arguments: Sequence[np.ndarray]) -> tuple[Callable, float]:
-        """The compiled program for these arguments' shapes, and the seconds it took to get
-        (thread-safe: threads asking for the same shapes at once compile it once)."""
-        signature = tuple((a.shape, a.dtype) for a in arguments)
+        """The compiled program for these arguments' shapes (and, with `times`, whether
+        their times are regular grids), and the seconds it took to get (thread-safe: threads
+        asking for the same program at once compile it once)."""
+        grid = None if self.times is None else regular_grid(arguments[self.times])
+        signature = (grid, *((a.shape, a.dtype) for a in arguments))
         found = self.executables.get(signature)
         if found is not None:
             return found, 0.0
@@ -160,15 +180,17 @@ class Program:
                 return found, 0.0
             began = _time.perf_counter()
             specs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in arguments]
-            function = self.function
+            function = self.function if grid is None else self._on_grid[grid]
             if self.key is not None and _EXPORT_FOLDER is not None:
-                function = self._exported(specs)
+                function = self._exported(function, specs, grid)
             found = self.executables[signature] = function.lower(*specs).compile()
             return found, _time.perf_counter() - began
 
-    def _exported(self, specs) -> Callable:
+    def _exported(self, function: Callable, specs, grid: bool | None) -> Callable:
         shapes = tuple((s.shape, str(s.dtype)) for s in specs)
-        digest = hashlib.sha256(repr((self.key, shapes)).encode()).hexdigest()[:24]
+        identity = (self.key, shapes) if grid is None else (
+            self.key, shapes, "regular times" if grid else "irregular times")
+        digest = hashlib.sha256(repr(identity).encode()).hexdigest()[:24]
         label = "".join(c if c.isalnum() or c in "-_" else "_" for c in self.name)[:40]
         path = _EXPORT_FOLDER / f"{_source_fingerprint()}-{label}-{digest}{EXPORT_SUFFIX}"
         try:
@@ -177,7 +199,7 @@ class Program:
                 return jax.jit(exported.call)
         except Exception:  # noqa: BLE001  (missing, unreadable or stale: export it anew)
             pass
-        exported = jax_export.export(self.function)(*specs)
+        exported = jax_export.export(function)(*specs)
         try:
             _write_export(path, exported.serialize())
         except (OSError, ImportError):  # a read-only cache, or no flatbuffers: run unsaved

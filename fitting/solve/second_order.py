@@ -37,7 +37,7 @@ def curvature_program(model, layout: Layout) -> Program:
         hessian, (value, gradient) = jax.jacfwd(gradient_and_value, has_aux=True)(*arguments)
         return value, gradient, hessian
 
-    return Program(curvature, f"curvature-{model.name}", export_key(model, layout))
+    return Program(curvature, f"curvature-{model.name}", export_key(model, layout), times=2)
 
 
 @functools.lru_cache(maxsize=64)

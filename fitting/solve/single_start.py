@@ -122,7 +122,7 @@ def solver_program(model, layout: Layout, options: SolverPlan) -> Program:
     if program is None:
         program = Program(single_start_function(model, layout, options),
                            f"{'lbfgs' if options.method == 'lbfgs' else 'solve'}-{model.name}",
-                           export_key(model, layout, options))
+                           export_key(model, layout, options), times=3)
         _PROGRAMS[key] = program
         while len(_PROGRAMS) > _MAX_PROGRAMS:
             _PROGRAMS.popitem(last=False)
