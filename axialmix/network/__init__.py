@@ -41,7 +41,7 @@ from ._presets import (
     v_blender,
     v_blender_species_amounts,
 )
-from ._propagation import regular_grid, traced_time_grid
+from ._propagation import regular_grid
 from ._responses import (
     compartment_amounts,
     cumulative_exit_age,
@@ -99,7 +99,6 @@ __all__ = [
     "species_fractions",
     "step_matrix",
     "tanks_in_series",
-    "traced_time_grid",
     "v_blender",
     "v_blender_species_amounts",
 ]

@@ -76,7 +76,8 @@ def four_compartment_generator(
 
 
 def four_compartment_exit_age(
-    t: ArrayLike, k_f: ArrayLike, k_r: ArrayLike, k_s: ArrayLike, k_out: ArrayLike
+    t: ArrayLike, k_f: ArrayLike, k_r: ArrayLike, k_s: ArrayLike, k_out: ArrayLike,
+    *, regular: bool | None = None,
 ) -> Array:
     """Exit age of the four-compartment model for a unit pulse into C1 (fast, for fitting).
 
@@ -89,6 +90,8 @@ def four_compartment_exit_age(
 
     - `t`: output times (time units), strictly increasing; E = 0 for t < 0.
     - `k_f`, `k_r`, `k_s`, `k_out`: scalar rates (1/time), non-negative.
+    - `regular`: for traced times, whether they are a regular grid (possibly shifted and
+      clipped at zero): see :func:`regular_grid`. Default: not said.
 
     **Returns:**
 
@@ -101,6 +104,7 @@ def four_compartment_exit_age(
             raise ValueError(f"{name} must be non-negative, got {array.min():g}.")
     times, concrete, shape = times_array(t)
     generator = four_compartment_generator(k_f, k_r, k_s, k_out)
-    states = continuous_states(generator, jnp.zeros(4).at[_INLET].set(1.0), times, concrete)
+    states = continuous_states(generator, jnp.zeros(4).at[_INLET].set(1.0), times, concrete,
+                               regular)
     outflow = jnp.asarray(k_out, dtype=float) * states[:, _OUTLET]
     return jnp.where(times >= 0, outflow, 0.0).reshape(shape)

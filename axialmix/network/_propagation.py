@@ -7,9 +7,7 @@ matrix–vector products), one per interval otherwise.
 
 from __future__ import annotations
 
-import contextlib
-import contextvars
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from functools import partial
 
 import jax
@@ -26,7 +24,6 @@ __all__ = [
     "continuous_states",
     "discrete_states",
     "regular_grid",
-    "traced_time_grid",
     "step_indices",
     "times_array",
     "uniform_spacing",
@@ -119,13 +116,21 @@ def times_array(times: ArrayLike) -> tuple[Array, np.ndarray | None, tuple[int, 
 
 
 def continuous_states(
-    generator: Array, start: Array, times: Array, concrete: np.ndarray | None
+    generator: Array, start: Array, times: Array, concrete: np.ndarray | None,
+    regular: bool | None = None,
 ) -> Array:
-    """``expm(K t_j) start`` for increasing times (zero-clipped: t < 0 gives ``start``)."""
+    """``expm(K t_j) start`` for increasing times (zero-clipped: t < 0 gives ``start``).
+
+    `regular` says what traced times are (see :func:`regular_grid`); concrete times
+    choose for themselves."""
     if concrete is not None:
         steps = np.diff(np.maximum(concrete, 0.0), prepend=0.0)
         return _exponential_states(generator, start, jnp.asarray(steps), uniform_spacing(steps))
-    return _traced_states(generator, start, times)
+    if regular is not None and not isinstance(regular, bool):
+        raise ValueError(f"regular must be True, False or None, got {regular!r}.")
+    return _traced_exponential_states(generator, start, times, regular)
+
+
 
 
 #: Relative spread of traced intervals below which they are propagated as one uniform grid
@@ -136,17 +141,29 @@ TRACED_UNIFORM_TOLERANCE = 1e-9
 #: regular: ten times tighter than the check the program makes on the times it is given.
 REGULAR_GRID_TOLERANCE = 1e-10
 
-_GRID = contextvars.ContextVar("axialmix_traced_time_grid", default=None)
-
-
 def regular_grid(times: ArrayLike) -> bool:
     """Whether every row of concrete `times` is a regular grid (at least three times, one
     positive spacing within a relative 1e-10).
 
+    A program traced for such rows may say so to the curves of a continuous network
+    (``regular=True`` in :func:`exit_age`, :func:`cumulative_exit_age` and
+    :func:`four_compartment_exit_age`): for traced times they then compile one propagation,
+    not two, which halves the compile time of a network fit. What ``regular`` says:
+
+    - ``None`` (default): nothing; whether traced times are uniformly spaced is known only
+      when the program runs, so both propagations are compiled and one is picked then.
+    - ``True``: a regular grid, possibly shifted and clipped at zero (``max(t_j - s, 0)``
+      for a grid ``t_j``, as a delay makes them): one matrix exponential for the first
+      positive interval and one for the spacing. Times that break it give NaN, never a
+      wrong value.
+    - ``False``: any increasing times: one exponential per interval (exact for a regular
+      grid too).
+
+    Concrete times choose for themselves.
+
     **Arguments:** `times`: times (any unit), one-dimensional or rows ``(..., samples)``.
 
-    **Returns:** a bool: what a program traced on such rows may tell
-    :func:`traced_time_grid`.
+    **Returns:** a bool.
     """
     rows = np.asarray(times, dtype=float)
     if rows.ndim == 0 or rows.shape[-1] < 3:
@@ -155,32 +172,6 @@ def regular_grid(times: ArrayLike) -> bool:
     first = steps[:, :1]
     return bool(np.all(np.isfinite(steps)) and np.all(first > 0)
                 and np.all(np.abs(steps - first) <= REGULAR_GRID_TOLERANCE * first))
-
-
-@contextlib.contextmanager
-def traced_time_grid(regular: bool) -> Iterator[None]:
-    """While tracing inside this block, say what the traced times of a continuous network
-    are, so that only one propagation is compiled (without it, whether traced times are
-    uniformly spaced is known only when the program runs, and both are compiled):
-
-    - ``regular=True``: a regular grid, possibly shifted and clipped at zero
-      (``max(t_j - s, 0)`` for a grid ``t_j``, as a delay makes them): one matrix
-      exponential for the first positive interval and one for the spacing. Times that break
-      this give NaN, never a wrong value.
-    - ``regular=False``: any increasing times: one exponential per interval (exact for a
-      regular grid too).
-
-    Halves the compile time of a network fit. Programs traced here must be kept apart from
-    those traced without it or with the other value (it is part of their identity).
-
-    **Arguments:** `regular`: whether the traced times are a regular grid
-    (:func:`regular_grid` of the concrete times the program will be given).
-    """
-    token = _GRID.set(bool(regular))
-    try:
-        yield
-    finally:
-        _GRID.reset(token)
 
 
 def _regular_propagate(transition: Callable[[Array], Array], start: Array,
@@ -219,10 +210,6 @@ def _regular_propagate(transition: Callable[[Array], Array], start: Array,
     return jnp.where(jnp.all(kept), states, jnp.nan)
 
 
-def _traced_states(generator: Array, start: Array, times: Array) -> Array:
-    return _traced_exponential_states(generator, start, times, _GRID.get())
-
-
 @partial(jax.jit, static_argnames="regular")
 def _traced_exponential_states(generator: Array, start: Array, times: Array,
                                regular: bool | None = None) -> Array:
@@ -230,7 +217,7 @@ def _traced_exponential_states(generator: Array, start: Array, times: Array,
     program runs, so both strategies are compiled and a branch picks one (one matrix
     exponential and matrix–vector products for a uniform grid: 100 times faster for a
     histogram of 4,000 bins than one exponential per interval). Under ``vmap`` the branch
-    becomes a select and both run. With `regular` said (:func:`traced_time_grid`) only
+    becomes a select and both run. With `regular` said (see :func:`regular_grid`) only
     the propagation it names is compiled."""
     increments = jnp.diff(jnp.maximum(times, 0.0), prepend=0.0)
     if increments.shape[0] < 3:

@@ -70,6 +70,8 @@ def exit_age(
     times: ArrayLike,
     rates: ArrayLike | None = None,
     outflow_rates: ArrayLike | None = None,
+    *,
+    regular: bool | None = None,
 ) -> Array:
     """Exit-age density ``E(t) = k_out · m(t)`` for a unit tracer pulse into the inlet(s) at t = 0.
 
@@ -82,6 +84,8 @@ def exit_age(
     - `network`: an open network (inlet and active outlet).
     - `times`: output times (time units), strictly increasing; E = 0 for t < 0.
     - `rates`, `outflow_rates`: optional rate arrays (see :func:`generator_matrix`).
+    - `regular`: for traced times of a continuous network, whether they are a regular grid
+      (possibly shifted and clipped at zero): see :func:`regular_grid`. Default: not said.
 
     **Returns:**
 
@@ -99,7 +103,7 @@ def exit_age(
         values = jnp.where(jnp.asarray(steps) >= 1, outflow, 0.0)
     else:
         generator = generator_matrix(network, rates, outflow_rates)
-        states = continuous_states(generator, split, times, concrete)
+        states = continuous_states(generator, split, times, concrete, regular)
         values = jnp.where(times >= 0, states @ outflow_vector(network, outflow_rates), 0.0)
     return values.reshape(shape)
 
@@ -109,6 +113,8 @@ def cumulative_exit_age(
     times: ArrayLike,
     rates: ArrayLike | None = None,
     outflow_rates: ArrayLike | None = None,
+    *,
+    regular: bool | None = None,
 ) -> Array:
     """Cumulative exit age ``F(t) = ∫_0^t E``: the outflow for a unit step of feed at t = 0.
 
@@ -117,6 +123,8 @@ def cumulative_exit_age(
     - `network`: an open network.
     - `times`: output times, strictly increasing; F = 0 for t ≤ 0.
     - `rates`, `outflow_rates`: optional rate arrays.
+    - `regular`: for traced times of a continuous network, whether they are a regular grid
+      (possibly shifted and clipped at zero): see :func:`regular_grid`. Default: not said.
 
     **Returns:**
 
@@ -142,7 +150,7 @@ def cumulative_exit_age(
         generator = generator_matrix(network, rates, outflow_rates)
         augmented = jnp.zeros((n + 1, n + 1)).at[:n, :n].set(generator).at[:n, n].set(split)
         start = jnp.zeros(n + 1).at[n].set(1.0)
-        states = continuous_states(augmented, start, times, concrete)
+        states = continuous_states(augmented, start, times, concrete, regular)
         values = jnp.where(times > 0, states[:, :n] @ outflow, 0.0)
     return values.reshape(shape)
 

@@ -5,8 +5,10 @@ function wrapped as one (:func:`~fitting.models.custom_model`)."""
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import functools
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,6 +30,33 @@ Statements = Callable[[Mapping[str, float], Mapping[str, Parameter]], list[str]]
 #: an inlet signal linear between its samples, zero before the first and after the last
 #: (JAX; ``t`` need not be sorted against the inlet samples).
 InletResponse = Callable[..., object]
+
+_TIME_GRID: contextvars.ContextVar[bool | None] = contextvars.ContextVar(
+    "fitting_traced_time_grid", default=None)
+
+
+@contextlib.contextmanager
+def traced_on_time_grid(regular: bool | None) -> Iterator[None]:
+    """Trace a program of curves inside this block with what their times are: ``True``
+    when every curve's times are a regular grid (:func:`axialmix.network.regular_grid`),
+    ``False`` when not, ``None``: not said. The built-in network models pass it to
+    :func:`axialmix.network.exit_age` (``regular``), so that only the propagation those
+    times need is compiled. A program traced here must be kept apart from one traced with
+    another value (:class:`fitting.solve.Program` keys its executables by it).
+
+    **Arguments:** `regular`: the value.
+    """
+    token = _TIME_GRID.set(regular)
+    try:
+        yield
+    finally:
+        _TIME_GRID.reset(token)
+
+
+def traced_time_grid() -> bool | None:
+    """What the program being traced says of its times (see :func:`traced_on_time_grid`);
+    ``None`` outside one."""
+    return _TIME_GRID.get()
 
 
 def parameter_unit(template: str, time_unit: str, value_unit: str | None = None) -> str:

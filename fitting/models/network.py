@@ -29,7 +29,7 @@ from axialmix.network import (
 from axialmix.network import exit_age as _network_exit_age
 from axialmix.network import four_compartment as _four_compartment_network
 from fitting.data import Curve
-from fitting.models.base import Model
+from fitting.models.base import Model, traced_time_grid
 from fitting.models.inlet import network_inlet_response
 from fitting.models.moments import moment_estimates
 from fitting.parameters import Parameter
@@ -83,7 +83,8 @@ def _four_compartment_moments(values: Mapping[str, float]) -> tuple[float, float
 
 
 def _four_compartment_function(t, p):
-    return four_compartment_exit_age(t, p["k_f"], p["k_r"], p["k_s"], p["k_out"])
+    return four_compartment_exit_age(t, p["k_f"], p["k_r"], p["k_s"], p["k_out"],
+                                     regular=traced_time_grid())
 
 
 def _four_compartment_rates(p):
@@ -97,7 +98,7 @@ def _four_compartment_rates(p):
 
 def _four_compartment_step(t, p):
     network, rates, outflow = _four_compartment_rates(p)
-    return cumulative_exit_age(network, t, rates, outflow)
+    return cumulative_exit_age(network, t, rates, outflow, regular=traced_time_grid())
 
 
 def _four_compartment_unit(p):
@@ -243,11 +244,11 @@ def network_model(
 
     def function(t, p):
         rates, outflow = rates_of(p)
-        return _network_exit_age(network, t, rates, outflow)
+        return _network_exit_age(network, t, rates, outflow, regular=traced_time_grid())
 
     def step(t, p):
         rates, outflow = rates_of(p)
-        return cumulative_exit_age(network, t, rates, outflow)
+        return cumulative_exit_age(network, t, rates, outflow, regular=traced_time_grid())
 
     def unit_of(p):
         rates, outflow = rates_of(p)

@@ -19,8 +19,9 @@ import numpy as np
 from jax import export as jax_export
 
 import axialmix  # float64 before any JAX array is made; its version keys the exports
-from axialmix.network import regular_grid, traced_time_grid
+from axialmix.network import regular_grid
 from fitting.models import MODELS
+from fitting.models.base import traced_on_time_grid
 
 
 def user_cache_folder() -> Path:
@@ -143,9 +144,9 @@ class Program:
     With `times` (the position of the argument that holds the curves' times, one row per
     curve), each program is traced knowing whether those times are all regular grids
     (:func:`axialmix.network.regular_grid`, said through
-    :func:`axialmix.network.traced_time_grid`): a compartment network then compiles only
-    the propagation its times need, not both. The two programs are kept, and exported,
-    apart.
+    :func:`fitting.models.base.traced_on_time_grid`): a built-in compartment network then
+    compiles only the propagation its times need, not both. The two programs are kept, and
+    exported, apart.
     """
 
     def __init__(self, function: Callable, name: str, key: tuple | None,
@@ -160,7 +161,7 @@ class Program:
         if times is not None:
             for regular in (False, True):
                 def on_grid(*arguments, regular=regular):
-                    with traced_time_grid(regular):
+                    with traced_on_time_grid(regular):
                         return function(*arguments)
 
                 self._on_grid[regular] = jax.jit(on_grid)
