@@ -118,7 +118,7 @@ def test_a_program_keeps_its_regular_and_irregular_forms_apart():
         values = {name: rates[j] for j, name in enumerate(model.parameter_names)}
         return model.function(time - rates[4], values)
 
-    program = Program(curve, "test-grid", None, times=1)
+    program = Program(curve, "test-grid", ("test-grid",), times=1)
     regular = np.linspace(0.0, 30.0, 64)
     irregular = np.sort(np.random.default_rng(8).uniform(0.0, 30.0, 64))
     rates = np.array([*np.asarray(RATES), 0.25])  # and a dead time of 0.25
@@ -132,3 +132,11 @@ def test_a_program_keeps_its_regular_and_irregular_forms_apart():
     with traced_on_time_grid(True):
         assert traced_time_grid() is True
     assert traced_time_grid() is None
+    # A program without a key (a user's model) is traced without being told.
+    seen.clear()
+    untold = Program(curve, "test-untold", None, times=1)
+    for times in (regular, irregular):
+        executable, _ = untold.executable((rates, times))
+        np.testing.assert_allclose(executable(rates, times), general(rates, times),
+                                   rtol=0, atol=1e-13)
+    assert set(seen) <= {None} and len(untold.executables) == 1

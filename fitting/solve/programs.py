@@ -146,7 +146,8 @@ class Program:
     (:func:`axialmix.network.regular_grid`, said through
     :func:`fitting.models.base.traced_on_time_grid`): a built-in compartment network then
     compiles only the propagation its times need, not both. The two programs are kept, and
-    exported, apart.
+    exported, apart. Only programs with a `key` (the models this package defines) are told:
+    a user's function may hold jitted code of its own, whose trace JAX keeps without it.
     """
 
     def __init__(self, function: Callable, name: str, key: tuple | None,
@@ -154,11 +155,11 @@ class Program:
         self.function = jax.jit(function)
         self.name = name
         self.key = key
-        self.times = times
+        self.times = times if key is not None else None
         self.executables: dict = {}
         self._compiling = threading.Lock()
         self._on_grid: dict[bool, Callable] = {}
-        if times is not None:
+        if self.times is not None:
             for regular in (False, True):
                 def on_grid(*arguments, regular=regular):
                     with traced_on_time_grid(regular):
