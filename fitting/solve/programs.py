@@ -152,20 +152,20 @@ class Program:
 
     def __init__(self, function: Callable, name: str, key: tuple | None,
                  times: int | None = None):
-        self.function = jax.jit(function)
         self.name = name
         self.key = key
         self.times = times if key is not None else None
         self.executables: dict = {}
         self._compiling = threading.Lock()
-        self._on_grid: dict[bool, Callable] = {}
+        # The function to trace by what its times are said to be (None: not said).
+        self._traced: dict[bool | None, Callable] = {None: jax.jit(function)}
         if self.times is not None:
             for regular in (False, True):
                 def on_grid(*arguments, regular=regular):
                     with traced_on_time_grid(regular):
                         return function(*arguments)
 
-                self._on_grid[regular] = jax.jit(on_grid)
+                self._traced[regular] = jax.jit(on_grid)
 
     def executable(self, arguments: Sequence[np.ndarray]) -> tuple[Callable, float]:
         """The compiled program for these arguments' shapes (and, with `times`, whether
@@ -182,7 +182,7 @@ class Program:
                 return found, 0.0
             began = _time.perf_counter()
             specs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in arguments]
-            function = self.function if grid is None else self._on_grid[grid]
+            function = self._traced[grid]
             if self.key is not None and _EXPORT_FOLDER is not None:
                 function = self._exported(function, specs, grid)
             found = self.executables[signature] = function.lower(*specs).compile()
