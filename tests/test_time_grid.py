@@ -60,6 +60,13 @@ def test_an_irregular_grid_gives_the_values_of_the_general_program():
     irregular = _exit_age_and_slopes(False)(RATES, 0.37, times)
     for told, both in zip(jax.tree.leaves(irregular), jax.tree.leaves(general), strict=True):
         np.testing.assert_allclose(told, both, rtol=1e-14, atol=1e-300)
+    # Against the matrix exponential at each time, independently.
+    generator = four_compartment_generator(*RATES)
+    direct = jax.vmap(lambda x: jax.scipy.linalg.expm(generator * x)[3, 0])(
+        jnp.maximum(times - 0.37, 0.0))
+    exact = np.where(np.asarray(times - 0.37) >= 0, RATES[3] * direct, 0.0)
+    np.testing.assert_allclose(irregular[0], exact, rtol=0,
+                               atol=1e-12 * float(np.max(np.abs(exact))))
 
 
 def test_times_that_break_the_promise_give_nan_not_a_wrong_value():
