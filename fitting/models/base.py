@@ -112,6 +112,13 @@ class Model:
       evaluation from the exact one over the times `t` at `params` (plain numbers), and the
       exact curve's peak (both 1/T; an exact evaluation of every point, seconds for a
       million), whatever the length of `t`.
+
+    **Attribute (not an argument):** ``export_identity``, ``None`` or a tuple of strings
+    that determines everything the model's function and hooks compute. A model with one has
+    its compiled programs kept between processes (:func:`fitting.solve.model_identity`); the
+    package's own constructors set it (:func:`~fitting.models.network_model`: the network
+    file's content and the parameter mapping). A model made from another with
+    :func:`dataclasses.replace` has none, since its function may differ.
     """
 
     name: str
@@ -131,6 +138,7 @@ class Model:
                                                                         repr=False)
     long_curve_check: Callable[..., tuple[float, float] | None] | None = field(
         default=None, repr=False)
+    export_identity: tuple[str, ...] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         names = tuple(self.parameter_names)

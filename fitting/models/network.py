@@ -5,6 +5,7 @@ its twin solutions, and a model from any network file of :mod:`axialmix.network`
 from __future__ import annotations
 
 import functools
+import json
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
@@ -259,7 +260,7 @@ def network_model(
         return moment_matched_adm(network, length, time_unit=time_unit, rates=rates,
                                   outflow_rates=outflow).as_dict()
 
-    return Model(
+    model = Model(
         name=name or Path(network_file).stem,
         parameter_names=names,
         function=function,
@@ -271,3 +272,9 @@ def network_model(
         step_response=None if network.is_discrete else step,
         inlet_response=None if network.is_discrete else network_inlet_response(unit_of),
     )
+    # What the programs compute: the network (structure and every rate, written exactly:
+    # JSON floats round-trip) and which rates each parameter sets. Programs of the same file
+    # content and mapping are then loaded from the cache in a later process.
+    mapping = json.dumps([[n, list(members[n])] for n in names])
+    object.__setattr__(model, "export_identity", ("network file", network.to_json(), mapping))
+    return model

@@ -22,8 +22,10 @@
   lengths share programs. Programs are kept per model, parameter layout, settings and
   padded length.
 * Across processes (after :func:`enable_compilation_cache`): the compiled programs are kept
-  by JAX's persistent compilation cache, and the programs of the built-in models (also
-  when wrapped in a measurement, :func:`model_identity`) are kept as :mod:`jax.export` files
+  by JAX's persistent compilation cache, and the programs of the built-in models and of
+  network files (:func:`~fitting.models.network_model`: by the file's content and parameter
+  mapping; also when wrapped in a measurement, :func:`model_identity`) are kept as
+  :mod:`jax.export` files
   in the user's cache folder, keyed by the package version
   and source, the JAX version, the model, layout, settings and shapes, so a later run loads
   them instead of tracing them again.

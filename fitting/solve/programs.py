@@ -213,7 +213,8 @@ def model_identity(model) -> tuple | None:
     """What identifies a model's function in another process, or ``None``.
 
     A built-in model (:data:`fitting.models.MODELS`) by its name; a model that declares an
-    ``export_identity`` (a tuple of strings and bytes) by that; a built-in model wrapped in a
+    ``export_identity`` (a tuple of strings and bytes; a network file's model, by the file's
+    content and parameter mapping) by that; a built-in model wrapped in a
     measurement (a model with ``base``, ``inlet`` — with a ``key`` — and ``free``, such as
     ``fitting.measurement.MeasuredModel``) by its class, the base's identity, the inlet and
     the free measurement parameters. Other models (a user's function) have none: their
