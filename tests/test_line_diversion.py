@@ -395,3 +395,60 @@ def test_exchange_samples_on_series_tables_equal_those_on_exact_tables(monkeypat
                                rtol=0, atol=1e-6)
     np.testing.assert_allclose(np.asarray(series.sample_stops), np.asarray(exact.sample_stops),
                                rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("model, values", [
+    ("four_compartment", {"k_f": 1.358, "k_r": 1.359, "k_s": 0.7752, "k_out": 0.8}),
+    ("closed_closed", {"tau": 7.0, "peclet": 0.6}),
+])
+def test_samples_split_among_concurrent_calls_give_the_numbers_of_one_call(monkeypatch, model,
+                                                                             values):
+    """On the CPU the covariance samples run as one call per core, at once: every sample's
+    numbers, and so the conservative window, equal those of one call over all samples, bit
+    for bit, whatever the number of calls (1000 samples: 16 batches of 64, split 1, 2, 3
+    and 8 ways; three ways adds two batches of padding; eight leaves two batches a call,
+    the fewest the split gives: a call of one batch rounds differently)."""
+    import axialmix.line._diversion as diversion
+
+    names = tuple(values)
+    covariance = np.diag((0.05 * np.array([values[n] for n in names])) ** 2)
+    fitted = FittedRTD.from_parameters(model, values, free=names, covariance=covariance)
+    disturbance = Disturbance.square(20.0, 5.0, 10.0, value_unit="%")
+    times = np.linspace(0.0, 60.0, 241)
+    limits = {"target": 100.0, "lower": 95.0, "upper": 105.0}
+    evaluated = diversion._evaluate_samples
+    seen, windows = {}, {}
+    for parts in (1, 2, 3, 8):
+        monkeypatch.setattr(diversion, "_cpu_parts", lambda batches, parts=parts: parts)
+
+        def record(*arguments, parts=parts, **keywords):
+            seen[parts] = evaluated(*arguments, **keywords)
+            return seen[parts]
+
+        monkeypatch.setattr(diversion, "_evaluate_samples", record)
+        window = conservative_diversion_window(
+            fitted, np.array([values[n] for n in names]), covariance, disturbance, times,
+            samples=1000, seed=5, flow=2.0, **limits)
+        windows[parts] = window.to_dict()
+    assert all(len(seen[parts][0]) == 1000 for parts in seen)
+    for parts in (2, 3, 8):
+        for one, split in zip(seen[1], seen[parts], strict=True):
+            np.testing.assert_array_equal(np.asarray(split), np.asarray(one))
+        assert windows[parts] == windows[1]
+    # A window that diverts, wider than the nominal one (the samples decided it).
+    conservative, nominal = windows[1]["conservative"], windows[1]["nominal"]
+    assert nominal["diverts"]
+    assert conservative["start"] < nominal["start"] < nominal["stop"] < conservative["stop"]
+
+
+def test_samples_run_as_one_call_per_cpu_core_of_two_batches_or_more():
+    import os
+
+    import axialmix.line._diversion as diversion
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    on_cpu = jax.default_backend() == "cpu"
+    for batches in range(1, 40):
+        parts = diversion._cpu_parts(batches)
+        assert parts == (max(1, min(cores, batches // 2)) if on_cpu else 1)
+        assert parts == 1 or batches // parts >= 2  # never a call of one batch

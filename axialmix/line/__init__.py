@@ -27,8 +27,8 @@
 * **Plots.** :func:`plot_line`, :func:`plot_response`, :func:`plot_funnel`,
   :func:`plot_diversion` (matplotlib is imported when a plot is drawn).
 * **Compiled programs.** The funnel and the diversion run as a few compiled programs (the
-  covariance samples in one batched call; a network's scans propagated along their uniform
-  grids). By default they are compiled in this process; a :data:`ProgramRunner` (the
+  covariance samples in one batched program, run on the CPU as one call per core at once;
+  a network's scans propagated along their uniform grids). By default they are compiled in this process; a :data:`ProgramRunner` (the
   command line's keeps them on disk across processes) decides how, by their
   :func:`program_identity`.
 """

@@ -22,6 +22,7 @@ parameter distribution. Two conservative windows are offered:
 
 from __future__ import annotations
 
+import concurrent.futures
 import math
 import os
 from collections.abc import Callable
@@ -856,32 +857,76 @@ def _sample_scan(times: np.ndarray, step: int) -> np.ndarray:
     return picked if picked[-1] == times[-1] else np.append(picked, times[-1])
 
 
+def _cpu_parts(batches: int) -> int:
+    """How many concurrent calls a program over `batches` batches of samples is run as.
+
+    On the CPU one call runs on one core, and calls made at once from several threads run
+    on as many cores: one call per core this process may use, each of two batches or more
+    (a call of one batch is compiled without its loop over batches, which XLA removes,
+    and rounds some samples' numbers differently in the last place; from two batches on,
+    each sample's numbers are those of one call over all). On an accelerator, which runs a
+    call's lanes in parallel itself: one call."""
+    if jax.default_backend() != "cpu":
+        return 1
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, batches // 2))
+
+
+def _padded_rows(rows, size: int):
+    """`rows` with copies of their first row up to `size` rows (NumPy)."""
+    rows = np.asarray(rows)
+    return np.concatenate([rows, np.repeat(rows[:1], size - rows.shape[0], axis=0)])
+
+
 def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lower, upper,
                       flow, horizon, tables=None, programs=None):
-    """Run the sample program (every sample in one call, in batches of vectors whose
-    temporary memory stays within :func:`memory_budget`)."""
+    """Run the sample program on every sample: batches of vectors whose temporary memory
+    stays within :func:`memory_budget`, split into whole batches among one call per CPU
+    core (:func:`_cpu_parts`; the calls run at once, each on its own thread). A sample's
+    batch and its place in it do not depend on the split, and each sample's numbers are
+    those of one call over all samples (bit for bit: tested)."""
     parameters = np.asarray(parameters)
     count = parameters.shape[0]
     batch = min(_BATCH, count)
     budget = memory_budget()
+    parts = _cpu_parts(-(-count // batch))
     while True:
         # Whole batches only (a remainder would be a second copy of the program): the last
-        # batch is filled with copies of the first vector, whose results are dropped.
-        padded_tables = None if tables is None else (
-            tables[0], _pad_rows(tables[1], batch),
-            None if tables[2] is None else _pad_rows(tables[2], batch))
-        args = (unit_factory, _pad_rows(parameters, batch), disturbance, times, target,
-                lower, upper, flow, horizon, padded_tables, _uniform_count(times), batch)
-        compiled = compile_program(programs, "divert-samples", _sample_windows, args)
+        # batches are filled with copies of the first vector, whose results are dropped.
+        rows = batch * -(-count // (batch * parts))  # samples a call
+        vectors = _padded_rows(parameters, rows * parts)
+        values = None if tables is None else tuple(
+            None if v is None else _padded_rows(v, rows * parts) for v in tables[1:])
+        calls = []
+        for k in range(parts):
+            taken = slice(k * rows, (k + 1) * rows)
+            part_tables = None if tables is None else (
+                tables[0], *(None if v is None else v[taken] for v in values))
+            calls.append((unit_factory, vectors[taken], disturbance, times, target, lower,
+                          upper, flow, horizon, part_tables, _uniform_count(times), batch))
+        compiled = compile_program(programs, "divert-samples", _sample_windows, calls[0])
         temp = compiled.temporary_bytes()
-        if temp <= budget or batch == 1:
+        if temp * parts <= budget:
             break
-        batch = max(1, int(batch * budget / temp))
-    if temp > budget:
-        raise DiversionTooLarge(
-            "points", f"one covariance sample over {times.shape[0]:,} scan times needs about "
-            f"{temp / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB allowed")
-    return tuple(np.asarray(result)[:count] for result in compiled(*args))
+        if batch > 1:
+            batch = max(1, int(batch * budget / (temp * parts)))
+        elif parts > 1:  # one sample a batch: fewer calls at once
+            parts = max(1, min(parts - 1, budget // max(temp, 1)))
+        else:
+            raise DiversionTooLarge(
+                "points", f"one covariance sample over {times.shape[0]:,} scan times needs "
+                f"about {temp / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB "
+                "allowed")
+    if parts == 1:
+        results = [compiled(*calls[0])]
+    else:
+        with concurrent.futures.ThreadPoolExecutor(parts) as pool:
+            results = list(pool.map(lambda call: jax.device_get(compiled(*call)), calls))
+    return tuple(np.concatenate([np.asarray(result[i]) for result in results])[:count]
+                 for i in range(len(results[0])))
 
 
 def _table_outlets_program(unit, step, cumulative, exit_age, disturbance, times, strides):

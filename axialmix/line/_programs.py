@@ -1,7 +1,7 @@
 """How the line's compiled programs are run: in this process, or through a caller's cache.
 
 The funnel plot and the diversion each run a few pure functions of arrays as compiled
-programs (the scan of the nominal window, the covariance samples in one batched call, the
+programs (the scan of the nominal window, the covariance samples in one batched program, the
 grid of durations). By default they are compiled in this process (``equinox.filter_jit``).
 A caller that keeps compiled programs across processes (the command line exports them to the
 user's cache) passes a :data:`ProgramRunner`: it is called with the program's name, the
