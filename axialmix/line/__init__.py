@@ -28,9 +28,9 @@
   :func:`plot_diversion` (matplotlib is imported when a plot is drawn).
 * **Compiled programs.** The funnel and the diversion run as a few compiled programs (the
   covariance samples in one batched program, run on the CPU as one call per core at once;
-  a network's scans propagated along their uniform grids). By default they are compiled in this process; a :data:`ProgramRunner` (the
-  command line's keeps them on disk across processes) decides how, by their
-  :func:`program_identity`.
+  a network's scans propagated along their uniform grids). By default they are compiled
+  in this process; a :data:`ProgramRunner` (the command line's keeps them on disk across
+  processes) decides how, by their :func:`program_identity`.
 """
 
 from axialmix.line._disturbance import Disturbance, OutletResponse, outlet_response
