@@ -452,3 +452,27 @@ def test_samples_run_as_one_call_per_cpu_core_of_two_batches_or_more():
         parts = diversion._cpu_parts(batches)
         assert parts == (max(1, min(cores, batches // 2)) if on_cpu else 1)
         assert parts == 1 or batches // parts >= 2  # never a call of one batch
+
+
+def test_exact_sample_curves_split_among_concurrent_calls_give_the_numbers_of_one_call(
+        monkeypatch):
+    """The exact F and E of each sample of an inverted unit (its tables' nodes), as one call
+    and as two at once: equal bit for bit (8 samples in 4 batches of 2)."""
+    import axialmix.line._diversion as diversion
+
+    names = ("tau", "peclet", "beta", "k_d")
+    values = np.array([EXCHANGE[n] for n in names])
+    factory = FittedRTD.from_parameters("closed_closed_exchange", EXCHANGE, free=names,
+                                        covariance=np.diag((0.03 * values) ** 2))
+    vectors = values * np.random.default_rng(4).lognormal(0.0, 0.03, (8, 4))
+    nodes = np.linspace(0.0, 30.0, 16)
+    curves = {}
+    for parts in (1, 2):
+        monkeypatch.setattr(diversion, "_cpu_parts", lambda batches, parts=parts: parts)
+        curves[parts] = diversion._exact_sample_curves(factory, vectors, nodes, True, 2)
+    for one, split in zip(curves[1], curves[2], strict=True):
+        assert one.shape == (8, 16)
+        np.testing.assert_array_equal(split, one)
+    # The curves are those of each sample's own unit (a CDF rising to near 1 by 6 tau).
+    assert np.all(np.diff(curves[1][0], axis=1) >= -1e-12)
+    assert np.all(curves[1][0][:, -1] > 0.99)

@@ -801,9 +801,17 @@ def _exact_sample_curves_program(unit_factory, parameters, times, exit_age, batc
 
 
 def _exact_sample_curves(unit_factory, parameters, times, exit_age, batch, programs=None):
-    """:func:`_exact_curves` of every sample's unit ``(samples, times)``, in batches."""
-    return run_program(programs, "divert-exact-sample-curves", _exact_sample_curves_program,
-                       unit_factory, parameters, np.asarray(times, float), exit_age, batch)
+    """:func:`_exact_curves` of every sample's unit ``(samples, times)``, in batches of
+    `batch` (`parameters`: whole batches), on the CPU as one call per core at once
+    (:func:`_cpu_parts`; each sample's numbers those of one call); NumPy arrays."""
+    parameters = np.asarray(parameters)
+    count = parameters.shape[0]
+    times = np.asarray(times, float)
+    calls = [(unit_factory, vectors, times, exit_age, batch) for (vectors,) in _row_calls(
+        (parameters,), count, batch, _cpu_parts(-(-count // batch)))]
+    compiled = compile_program(programs, "divert-exact-sample-curves",
+                               _exact_sample_curves_program, calls[0])
+    return _run_calls(compiled, calls, count)
 
 
 def _padded(times: np.ndarray, size: int) -> np.ndarray:
@@ -881,6 +889,27 @@ def _padded_rows(rows, size: int):
     return np.concatenate([rows, np.repeat(rows[:1], size - rows.shape[0], axis=0)])
 
 
+def _row_calls(arrays, count: int, batch: int, parts: int) -> list[tuple]:
+    """Each call's rows of `arrays` (arrays of `count` rows, or None): padded with copies of
+    their first row to whole batches of `batch`, the same number a call, for `parts` calls."""
+    rows = batch * -(-count // (batch * parts))
+    padded = [None if a is None else _padded_rows(a, rows * parts) for a in arrays]
+    return [tuple(None if a is None else a[k * rows:(k + 1) * rows] for a in padded)
+            for k in range(parts)]
+
+
+def _run_calls(compiled, calls: list[tuple], count: int):
+    """`compiled` run on each call's arguments, the calls at once (a thread each); the
+    outputs joined along their rows and cut to `count` rows (NumPy; a None output stays
+    None)."""
+    if len(calls) == 1:
+        results = [jax.device_get(compiled(*calls[0]))]
+    else:
+        with concurrent.futures.ThreadPoolExecutor(len(calls)) as pool:
+            results = list(pool.map(lambda call: jax.device_get(compiled(*call)), calls))
+    return jax.tree_util.tree_map(lambda *outputs: np.concatenate(outputs)[:count], *results)
+
+
 def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lower, upper,
                       flow, horizon, tables=None, programs=None):
     """Run the sample program on every sample: batches of vectors whose temporary memory
@@ -896,17 +925,12 @@ def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lowe
     while True:
         # Whole batches only (a remainder would be a second copy of the program): the last
         # batches are filled with copies of the first vector, whose results are dropped.
-        rows = batch * -(-count // (batch * parts))  # samples a call
-        vectors = _padded_rows(parameters, rows * parts)
-        values = None if tables is None else tuple(
-            None if v is None else _padded_rows(v, rows * parts) for v in tables[1:])
-        calls = []
-        for k in range(parts):
-            taken = slice(k * rows, (k + 1) * rows)
-            part_tables = None if tables is None else (
-                tables[0], *(None if v is None else v[taken] for v in values))
-            calls.append((unit_factory, vectors[taken], disturbance, times, target, lower,
-                          upper, flow, horizon, part_tables, _uniform_count(times), batch))
+        calls = [(unit_factory, vectors, disturbance, times, target, lower, upper, flow,
+                  horizon, None if tables is None else (tables[0], cumulative, density),
+                  _uniform_count(times), batch)
+                 for vectors, cumulative, density in _row_calls(
+                     (parameters, *((None, None) if tables is None else tables[1:])),
+                     count, batch, parts)]
         compiled = compile_program(programs, "divert-samples", _sample_windows, calls[0])
         temp = compiled.temporary_bytes()
         if temp * parts <= budget:
@@ -920,13 +944,7 @@ def _evaluate_samples(unit_factory, parameters, disturbance, times, target, lowe
                 "points", f"one covariance sample over {times.shape[0]:,} scan times needs "
                 f"about {temp / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB "
                 "allowed")
-    if parts == 1:
-        results = [compiled(*calls[0])]
-    else:
-        with concurrent.futures.ThreadPoolExecutor(parts) as pool:
-            results = list(pool.map(lambda call: jax.device_get(compiled(*call)), calls))
-    return tuple(np.concatenate([np.asarray(result[i]) for result in results])[:count]
-                 for i in range(len(results[0])))
+    return tuple(_run_calls(compiled, calls, count))
 
 
 def _table_outlets_program(unit, step, cumulative, exit_age, disturbance, times, strides):
