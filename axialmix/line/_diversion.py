@@ -1021,9 +1021,8 @@ def _sample_grid(disturbance: Disturbance, scan: np.ndarray, step: float):
 
 def _pad_rows(parameters, batch: int):
     """`parameters` with copies of their first row up to a whole number of batches (NumPy)."""
-    parameters = np.asarray(parameters)
-    return np.concatenate([parameters, np.repeat(parameters[:1], -parameters.shape[0] % batch,
-                                                 axis=0)])
+    count = np.shape(parameters)[0]
+    return _padded_rows(parameters, count + -count % batch)
 
 
 def _unit_transfer(unit: Unit):
