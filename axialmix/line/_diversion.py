@@ -802,8 +802,9 @@ def _exact_sample_curves_program(unit_factory, parameters, times, exit_age, batc
 
 def _exact_sample_curves(unit_factory, parameters, times, exit_age, batch, programs=None):
     """:func:`_exact_curves` of every sample's unit ``(samples, times)``, in batches of
-    `batch` (`parameters`: whole batches), on the CPU as one call per core at once
-    (:func:`_cpu_parts`; each sample's numbers those of one call); NumPy arrays."""
+    `batch` (the last filled with copies of the first vector, whose results are dropped),
+    on the CPU as one call per core at once (:func:`_cpu_parts`; each sample's numbers
+    those of one call); NumPy arrays."""
     parameters = np.asarray(parameters)
     count = parameters.shape[0]
     times = np.asarray(times, float)
@@ -1077,7 +1078,7 @@ def _sample_tables(unit_factory, parameters, disturbance, scan, step: float, bat
     terms = _fourier_terms(unit, grid * intervals, intervals, needs, programs)
     if terms is None:
         cumulative, density = _exact_sample_curves(
-            unit_factory, _pad_rows(parameters, batch), nodes, needs, batch, programs)
+            unit_factory, parameters, nodes, needs, batch, programs)
         return ((grid, cumulative[:count], None if density is None else density[:count]),
                 horizon, SampleTables(intervals, None, count, float("nan")))
     fbatch = min(_fourier_batch(terms), count)
@@ -1088,8 +1089,8 @@ def _sample_tables(unit_factory, parameters, disturbance, scan, step: float, bat
     density = None if density is None else np.array(density[:count])
     checked = _check_nodes(intervals)
     exact_f, exact_e = _exact_sample_curves(
-        unit_factory, _pad_rows(parameters, batch), _padded(nodes[checked], CHECK_NODES),
-        needs, batch, programs)
+        unit_factory, parameters, _padded(nodes[checked], CHECK_NODES), needs, batch,
+        programs)
     exact_f = np.asarray(exact_f[:count, : checked.size])
     difference = np.abs(cumulative[:, checked] - exact_f).max(axis=1)
     finite = np.isfinite(exact_f).all(axis=1)
@@ -1104,7 +1105,7 @@ def _sample_tables(unit_factory, parameters, disturbance, scan, step: float, bat
     redo = np.flatnonzero(finite & ~(error <= FOURIER_TOLERANCE))
     if redo.size:
         exact_cumulative, exact_density = _exact_sample_curves(
-            unit_factory, _pad_rows(parameters[redo], batch), nodes, needs, batch, programs)
+            unit_factory, parameters[redo], nodes, needs, batch, programs)
         cumulative[redo] = np.asarray(exact_cumulative[: redo.size])
         if density is not None:
             density[redo] = np.asarray(exact_density[: redo.size])
@@ -1127,7 +1128,7 @@ def _sample_settle_exact(unit_factory, parameters, disturbance, ends, batch: int
         return np.zeros((count, ends.shape[0]))
     lags = ends - events.max()
     cumulative, _ = _exact_sample_curves(
-        unit_factory, _pad_rows(parameters, batch), _padded(np.maximum(lags, 0.0), CHECK_NODES),
+        unit_factory, parameters, _padded(np.maximum(lags, 0.0), CHECK_NODES),
         _needs(disturbance), batch, programs)
     return _unsettled_from(np.asarray(cumulative)[:count, : ends.shape[0]], lags)
 
