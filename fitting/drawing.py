@@ -25,7 +25,8 @@ import sys
 import threading
 from typing import Any
 
-__all__ = ["FigureSpec", "draw", "draw_fit", "serve", "start_worker", "stop_worker"]
+__all__ = ["FigureSpec", "draw", "draw_fit", "fit_figure", "serve", "start_worker",
+           "stop_worker"]
 
 #: The keys of a figure: ``time``, ``observed``, ``fine``, ``curve``, ``grid_curve`` (or
 #: ``None``), ``residual`` (float arrays); ``data_label``, ``fit_label``, ``grid_label``,
@@ -39,12 +40,25 @@ _REPLY = struct.Struct("<BQ")
 
 
 def draw_fit(spec: FigureSpec) -> bytes:
-    """Draw the two-panel fit plot (data and model above with the headline parameters written
-    beside them, residuals below, all in the units of the data) as PNG bytes.
+    """Draw the two-panel fit plot (data and model above, with the headline parameters in the
+    legend's box, placed where it hides none of them; residuals below; all in the units of
+    the data) as PNG bytes.
 
     **Arguments:** `spec`: a :data:`FigureSpec`.
 
     **Returns:** the PNG file's bytes (7 × 6 inches at 100 dpi).
+    """
+    buffer = io.BytesIO()
+    fit_figure(spec).savefig(buffer, format="png", dpi=100)
+    return buffer.getvalue()
+
+
+def fit_figure(spec: FigureSpec):
+    """The matplotlib figure that :func:`draw_fit` saves (Agg, 7 × 6 inches).
+
+    **Arguments:** `spec`: a :data:`FigureSpec`.
+
+    **Returns:** a :class:`matplotlib.figure.Figure`; its top axes hold the legend.
     """
     import matplotlib
 
@@ -64,19 +78,49 @@ def draw_fit(spec: FigureSpec) -> bytes:
                  label=spec["grid_label"])
     top.set_ylabel(spec["ylabel"])
     top.set_title(spec["title"], fontsize=10)
-    top.legend(fontsize=8, loc="upper right")
-    if spec["annotation"]:
-        top.text(0.98, 0.80, spec["annotation"], transform=top.transAxes, fontsize=8,
-                 ha="right", va="top", multialignment="left", linespacing=1.4,
-                 bbox={"boxstyle": "round", "facecolor": "white", "edgecolor": "0.7"})
     bottom.axhline(0.0, color="grey", linewidth=0.8)
     bottom.plot(spec["time"], spec["residual"], "o-", color="tab:blue",
                 markersize=1.5 if thinned else 4, linewidth=0.5 if thinned else 1.0)
     bottom.set_ylabel(spec["residual_label"])
     bottom.set_xlabel(spec["xlabel"])
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=100)
-    return buffer.getvalue()
+    _place_legend(figure, top, spec)
+    return figure
+
+
+def _place_legend(figure, axes, spec: FigureSpec) -> None:
+    """The legend, headed by the headline parameters, where it hides none of the data.
+
+    Its box goes where it covers the least of the points and curves (matplotlib's "best" of
+    nine places). Where that still covers some (a curve that fills the panel), the panel is
+    made taller above the data by the box's height and the box goes to the top right, over
+    the room made for it: a box fixed in a corner hid points of curves whose peak is late or
+    whose tail is cut.
+    """
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    legend = axes.legend(fontsize=8, loc="best", title=spec["annotation"] or None,
+                         title_fontsize=8, alignment="left")
+    axes.get_ylim()  # the limits the data set, before the box is placed against them
+    renderer = FigureCanvasAgg(figure).get_renderer()
+    legend.draw(renderer)  # places the box (drawn again with the figure)
+    box = legend.get_window_extent(renderer).padded(2.0)
+    drawn = [(spec["time"], spec["observed"]), (spec["fine"], spec["curve"])]
+    if spec["grid_curve"] is not None:
+        drawn.append((spec["fine"], spec["grid_curve"]))
+    points = np.concatenate([np.column_stack([np.asarray(x, float), np.asarray(y, float)])
+                             for x, y in drawn])
+    points = points[np.isfinite(points).all(axis=1)]
+    shown = axes.transData.transform(points)
+    inside = ((shown[:, 0] >= box.x0) & (shown[:, 0] <= box.x1)
+              & (shown[:, 1] >= box.y0) & (shown[:, 1] <= box.y1))
+    if not inside.any():
+        return
+    panel = axes.get_window_extent(renderer)
+    share = min(box.height / panel.height + 0.03, 0.6)  # of the panel, above the data
+    low, high = axes.get_ylim()
+    axes.set_ylim(low, low + (high - low) / (1.0 - share))
+    legend.set_loc("upper right")
 
 
 class _WorkerFailed(Exception):
