@@ -62,6 +62,7 @@ __all__ = [
     "estimate_combined_errors",
     "leverages",
     "mean_absolute_error",
+    "proportional_shares",
     "residuals",
     "sum_of_squares",
 ]
@@ -302,6 +303,35 @@ def leverages(jacobian: np.ndarray, weights: np.ndarray) -> np.ndarray:
 #: Range of the proportional share ``f`` searched, in ``logit f``: up to ``1 - f = 4e-18``,
 #: so an absent additive part is found as (numerically) zero, never exactly zero.
 LOGIT_RANGE = 40.0
+
+
+def proportional_shares(additive: float, proportional: float,
+                        model_values: np.ndarray) -> np.ndarray | None:
+    """Where the combined error estimate found no additive part: each point's share of the
+    variance that is proportional, ``(b m)² / (a² + (b m)²)``; otherwise ``None``.
+
+    The estimate searches the proportional share only up to ``logit f = LOGIT_RANGE``. Noise
+    with no additive part (proportional down to the model's own accuracy) ends at that
+    bound, with an ``a`` about ``2e-9 · b · max|m|`` that stands for zero: its weights
+    ``1 / (a² + (b m)²)`` are capped far below the peak, where the residuals are smaller
+    than ``a`` says. Those points hold less than a degree of freedom each; these shares
+    count them (:func:`fitting.uncertainty.effective_degrees_of_freedom`), as the floor of
+    relative errors is counted.
+
+    **Arguments:** `additive` (``a``, data unit) and `proportional` (``b``, a fraction) of
+    the estimate; `model_values` (data unit) at the fit's points.
+
+    **Returns:** the shares (dimensionless, each in [0, 1]), or ``None`` where the estimate
+    found an additive part.
+    """
+    size = np.abs(np.asarray(model_values, dtype=float))
+    spread = proportional * float(size.max(initial=0.0))
+    if not (spread > 0 and additive**2 <= math.exp(1.0 - LOGIT_RANGE) * spread**2):
+        return None
+    varying = (proportional * size) ** 2
+    return varying / (additive**2 + varying)
+
+
 #: Most numbers held at once by the grid search of the combined error sizes.
 _GRID_BLOCK = 1 << 20
 

@@ -16,7 +16,13 @@ import equinox as eqx
 import numpy as np
 
 from fitting.data import Curve
-from fitting.losses import CombinedErrors, CountingErrors, ErrorEstimate, check_passes
+from fitting.losses import (
+    CombinedErrors,
+    CountingErrors,
+    ErrorEstimate,
+    check_passes,
+    proportional_shares,
+)
 from fitting.models import Model
 from fitting.parameters import Parameters
 from fitting.residuals import LackOfFit, counting_lack_of_fit, lack_of_fit_test
@@ -306,10 +312,18 @@ class FitResult:
 
         All of them, except in a relative-error fit the points whose model value lies below
         the floor (``|model| < floor · peak``): their weight is capped there, so it no longer
-        says how large their noise is.
+        says how large their noise is. Likewise in a combined-error fit whose estimate found
+        no additive part (:func:`fitting.losses.proportional_shares`): the points where the
+        stand-in additive part holds most of the variance (far below the peak, where the
+        residuals may be the model's own rounding, not noise).
         """
         relative = getattr(self.settings, "relative_errors", None)
         size = np.abs(np.asarray(self.predicted, dtype=float))
+        error = self.error_model
+        if error is not None and error.kind == "combined" and size.size:
+            shares = proportional_shares(error.additive, error.proportional, size)
+            if shares is not None:
+                return shares >= 0.5
         if relative is None or size.size == 0:
             return np.ones(size.shape, dtype=bool)
         return size >= relative.floor * size.max()
