@@ -148,6 +148,11 @@ CASES = [
      ["{good.csv}", "--out", "{a_file}/results"], "{a_file}/results: --out"),
     ("--out is a file", {"good.csv": GOOD, "a_file": "x"}, ["{good.csv}", "--out", "{a_file}"],
      "{a_file}: --out"),
+    # Its summary.csv would be read as a curve by the next run on the folder.
+    ("--out is the input folder", {"f/a.csv": GOOD}, ["{f}", "--out", "{f}"],
+     "{f}: --out is the input folder"),
+    ("--out would overwrite the input summary.csv", {"f/summary.csv": GOOD},
+     ["{f/summary.csv}", "--out", "{f}"], "{f}: --out would overwrite the input"),
     ("--out locked by a running fit", {"good.csv": GOOD, "busy/.axialmix-fit.lock": "{pid}\n"},
      ["{good.csv}", "--out", "{busy}"], "{busy}: --out is being written"),
     # A folder with a good file and a bad one: nothing is written for the good one either.

@@ -27,7 +27,12 @@ from fitting.cli.fit.options import (
     profile_names,
     settings_for_each,
 )
-from fitting.cli.fit.outfolder import FolderLock, check_out, remove_temporary_files
+from fitting.cli.fit.outfolder import (
+    FolderLock,
+    check_out,
+    check_out_apart,
+    remove_temporary_files,
+)
 from fitting.cli.fit.report import print_single
 from fitting.cli.fit.study import is_study, run_study
 from fitting.cli.fit.supervise import Supervised, exit_now
@@ -67,6 +72,7 @@ def run_fit(args: argparse.Namespace) -> int:
                   "is it in metres?", file=sys.stderr)
         out = Path(args.out)
         check_out(out)
+        check_out_apart(out, args.inputs)
         from fitting.measurement import Inlet, measured
 
         free = free_names(args.free)

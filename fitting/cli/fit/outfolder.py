@@ -37,6 +37,23 @@ def check_out(out: Path) -> None:
         raise InputError(f"{out}: --out cannot be created ({parent} is not writable)")
 
 
+#: The tables a run writes into its --out folder, which a later run would read as curves.
+TABLES = ("summary.csv", "refused.csv")
+
+
+def check_out_apart(out: Path, inputs) -> None:
+    """Refuse an --out that is an input folder (its tables would be read as curves by the
+    next run on that folder) or that holds an input file a table of the run would replace."""
+    where = out.resolve()
+    for item in inputs:
+        path = Path(item)
+        if path.is_dir() and path.resolve() == where:
+            raise InputError(f"{out}: --out is the input folder {item}; its summary.csv would "
+                             "be read as a curve by the next run: choose another folder")
+        if path.is_file() and path.resolve().parent == where and path.name in TABLES:
+            raise InputError(f"{out}: --out would overwrite the input {item}")
+
+
 class FolderLock:
     """The lock file of an output folder (see :mod:`fitting.cli.fit`)."""
 
