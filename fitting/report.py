@@ -29,10 +29,12 @@ import numpy as np
 from axialmix._files import write_atomic, write_csv, write_json
 from axialmix.adm import error_estimate as _fv_error_estimate
 from fitting.diagnostics import (
+    ON_CURVE_SHARE,
     ModelComparison,
     has_poorly_determined_combinations,
     identifiability,
     other_optima,
+    points_on_curve,
 )
 from fitting.drawing import FigureSpec, draw
 from fitting.gridsearch import GridResult
@@ -155,6 +157,16 @@ def identifiability_statements(result: FitResult) -> list[str]:
                 f"({100 * relative:.0f} %), 95 % interval [{low:.4g}, {high:.4g}]."
             )
             undetermined.append(name)
+    on_curve = points_on_curve(result) if result.free_names else math.inf
+    if on_curve <= len(result.free_names):
+        statements.append(
+            f"Only {on_curve} of the {int(np.count_nonzero(result.weights > 0))} points "
+            f"{'lies' if on_curve == 1 else 'lie'} on the fitted curve (above "
+            f"{100 * ON_CURVE_SHARE:.0f} % of its height), for "
+            f"{len(result.free_names)} free parameters: the samples do not trace its shape, "
+            "so the intervals from the linearised model do not hold (--profile shows how far "
+            "each parameter is free).")
+        undetermined.extend(n for n in result.free_names if n not in undetermined)
     names = list(result.free_names)
     correlation = np.asarray(result.correlation, dtype=float)
     for i in range(len(names)):
