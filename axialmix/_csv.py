@@ -1,7 +1,8 @@
 """One reader for the small numeric CSV tables axialmix reads (RTD curves, trajectories).
 
 A table file is text (UTF-8, with or without a byte-order mark) with optional ``#`` comment
-lines and blank lines, an optional header row of column names that may carry units
+lines and blank lines (a row of separators alone, as spreadsheets save empty rows, is
+blank), an optional header row of column names that may carry units
 (``t [min]``, ``time (s)``, ``x/mm``, ``time_min``), and data rows. Cells are separated by
 ``,``, ``;`` or tabs (detected from the first row), or by runs of spaces when the first row
 has none of these. Decimal commas (``0,25``) are read with ``decimal=","`` (then ``,`` cannot
@@ -335,7 +336,8 @@ def _lines(path: Path) -> Iterator[tuple[int, str]]:
             except UnicodeDecodeError as error:
                 raise DataError(path, f"not UTF-8 text ({error.reason})", number) from None
             stripped = line.strip()
-            if stripped and not stripped.startswith("#"):
+            # A row of separators alone (";;", as spreadsheets save empty rows) is blank.
+            if stripped.strip(",;\t ") and not stripped.startswith("#"):
                 yield number, line.rstrip("\r\n")
 
 

@@ -9,7 +9,8 @@ Format accepted:
 
 * Read by :mod:`axialmix._csv` (streamed: a file of millions of rows is read in bounded
   memory). Delimiter: comma, semicolon, tab or runs of spaces (detected from the first row).
-* Lines starting with ``#`` and blank lines are skipped (they still count for line numbers).
+* Lines starting with ``#`` and blank lines (or rows of separators alone, ``;;``) are
+  skipped (they still count for line numbers).
 * An optional header line. Time column names: ``t``, ``time``, ``times``, ``time_s``,
   ``t [min]``, ``time (s)``, ...; value column names: ``c``, ``conc``, ``concentration``,
   ``E``, ``E(t) [1/s]``, ``exit_age``, ``value``, ``signal``, ``tracer``, ``y``, ...

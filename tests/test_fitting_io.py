@@ -78,6 +78,24 @@ def test_headerless_semicolon_and_whitespace_files_and_comments(tmp_path):
     assert semicolon.name == "a" and semicolon.source.endswith("a.csv")
 
 
+@pytest.mark.parametrize("rows_of_separators", [("", ";", ";;"), (",", ",,", " , ")],
+                         ids=["semicolons", "commas"])
+def test_rows_of_separators_alone_are_blank_rows_as_spreadsheets_save_them(
+        tmp_path, rows_of_separators):
+    rows = _gaussian_rows(np.linspace(0, 30, 31))
+    delimiter = ";" if ";" in "".join(rows_of_separators) else ","
+    lines = _csv("t [min];c".replace(";", delimiter), rows, delimiter).splitlines()
+    empty = list(rows_of_separators)
+    text = "\n".join([*lines[:10], empty[0], *lines[10:], *empty[1:]]) + "\n"
+    curve = read_rtd_csv(_write(tmp_path, text))
+    plain = read_rtd_csv(_write(tmp_path, "\n".join(lines) + "\n", "plain.csv"))
+    np.testing.assert_array_equal(curve.time, plain.time)
+    np.testing.assert_array_equal(curve.value, plain.value)
+    # A row with a number and an empty cell is still a row with a missing value.
+    with pytest.raises(DataError, match="empty cell"):
+        read_rtd_csv(_write(tmp_path, text + f"31{delimiter}\n", "torn.csv"))
+
+
 def test_value_column_is_chosen_by_name_among_extra_columns(tmp_path):
     rows = [(t, c, 99.0) for t, c in _gaussian_rows(np.linspace(0, 30, 31))]
     path = _write(tmp_path, _csv("t,sample_id,temperature", rows))
