@@ -2,11 +2,12 @@
 
 A table file is text (UTF-8, with or without a byte-order mark) with optional ``#`` comment
 lines and blank lines (a row of separators alone, as spreadsheets save empty rows, is
-blank), an optional header row of column names that may carry units
-(``t [min]``, ``time (s)``, ``x/mm``, ``time_min``), and data rows. Cells are separated by
-``,``, ``;`` or tabs (detected from the first row), or by runs of spaces when the first row
-has none of these. Decimal commas (``0,25``) are read with ``decimal=","`` (then ``,`` cannot
-separate cells) or detected with ``decimal="auto"``. Rows are numbered as lines of the file
+blank), an optional header row of column names that may carry units (``t [min]``,
+``time (s)``, ``x/mm``, ``time_min``), and data rows. Cells are separated by ``,``, ``;`` or
+tabs (detected from the first row, or named by a first line ``sep=;`` as spreadsheets write
+it), or by runs of spaces when the first row has none of these. Decimal commas (``0,25``)
+are read with ``decimal=","`` (then ``,`` cannot separate cells) or detected with
+``decimal="auto"``. Rows are numbered as lines of the file
 (first line = row 1), as a spreadsheet shows them.
 
 The body is streamed row by row, so a file of millions of rows is read in memory
@@ -106,6 +107,15 @@ def split_name_unit(cell: str, suffix_units: Sequence[str] = ()) -> tuple[str, s
         if stem and suffix in suffix_units:
             return stem, suffix
     return lower, None
+
+
+def _separator_hint(line: str) -> str | None:
+    """The separator a first line ``sep=;`` names (as spreadsheets write it: ``,``, ``;`` or
+    a tab), or ``None`` for any other line."""
+    text = line.strip(" \r\n").lstrip("\ufeff").strip('"')
+    if len(text) == 5 and text[:4].lower() == "sep=" and text[4] in DELIMITERS:
+        return text[4]
+    return None
 
 
 def detect_delimiter(line: str) -> str | None:
@@ -391,6 +401,9 @@ def read_table(
     try:
         lines = _lines(path)
         first = next(lines, None)
+        hint = _separator_hint(first[1]) if first is not None else None
+        if hint is not None:  # the spreadsheet's "sep=;" line: the cells' separator
+            first = next(lines, None)
         second = next(lines, None) if first is not None else None
         lines.close()
     except OSError as error:
@@ -398,7 +411,7 @@ def read_table(
     if first is None:
         raise DataError(path, "no data (the file is empty)")
     first_number, first_line = first
-    delimiter = detect_delimiter(first_line)
+    delimiter = detect_delimiter(first_line) if hint is None else hint
     if decimal == "auto":
         sample = second[1] if second is not None else first_line
         cells = _split(sample, delimiter)

@@ -8,7 +8,8 @@ problem. Warnings (:class:`DataWarning`) are one line too.
 Format accepted:
 
 * Read by :mod:`axialmix._csv` (streamed: a file of millions of rows is read in bounded
-  memory). Delimiter: comma, semicolon, tab or runs of spaces (detected from the first row).
+  memory). Delimiter: comma, semicolon, tab or runs of spaces (detected from the first row,
+  or named by a spreadsheet's first line ``sep=;``).
 * Lines starting with ``#`` and blank lines (or rows of separators alone, ``;;``) are
   skipped (they still count for line numbers).
 * An optional header line. Time column names: ``t``, ``time``, ``times``, ``time_s``,

@@ -96,6 +96,19 @@ def test_rows_of_separators_alone_are_blank_rows_as_spreadsheets_save_them(
         read_rtd_csv(_write(tmp_path, text + f"31{delimiter}\n", "torn.csv"))
 
 
+@pytest.mark.parametrize("separator", [";", ",", "\t"], ids=["semicolon", "comma", "tab"])
+def test_a_spreadsheet_separator_line_names_the_cells_separator(tmp_path, separator):
+    rows = _gaussian_rows(np.linspace(0, 30, 31))
+    # A header with the other separators in its names: only the "sep=" line can tell.
+    names = {";": "t, min;c, mg/L", ",": "t; min,c; mg/L", "\t": "t, min\tc; mg/L"}
+    text = _csv(names[separator], rows, separator)
+    curve = read_rtd_csv(_write(tmp_path, f"sep={separator}\n" + text))
+    expected = np.array(rows)
+    np.testing.assert_allclose(curve.time, expected[:, 0])
+    plain = read_rtd_csv(_write(tmp_path, _csv(None, rows, separator), "plain.csv"))
+    np.testing.assert_array_equal(curve.value, plain.value)
+
+
 def test_value_column_is_chosen_by_name_among_extra_columns(tmp_path):
     rows = [(t, c, 99.0) for t, c in _gaussian_rows(np.linspace(0, 30, 31))]
     path = _write(tmp_path, _csv("t,sample_id,temperature", rows))
