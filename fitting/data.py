@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import fnmatch
 import math
+import re
 import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -474,6 +475,13 @@ def column_time_unit(table: Table, column: Column) -> str:
         if underscore and stem in _TIME_NAMES and suffix:
             raise table.error(f"unknown time unit {suffix!r} in {column.label!r} "
                               f"(known: s, ms, min, h)")
+        # "time in min", "minutes": a unit in words the header grammar does not read, which
+        # would otherwise be taken for seconds without a word.
+        for word in re.findall(r"[a-z]+", column.label.lower()):
+            if word in _TIME_UNITS:
+                raise table.error(f"the time column {column.label!r} names its unit as "
+                                  f"{word!r} in a way not read; write 'time ({word})' or "
+                                  f"'time [{word}]'")
         return "s"
     if column.unit.lower() not in _TIME_UNITS:
         raise table.error(f"unknown time unit {column.unit!r} in {column.label!r} "

@@ -100,13 +100,22 @@ def test_rows_of_separators_alone_are_blank_rows_as_spreadsheets_save_them(
 def test_a_spreadsheet_separator_line_names_the_cells_separator(tmp_path, separator):
     rows = _gaussian_rows(np.linspace(0, 30, 31))
     # A header with the other separators in its names: only the "sep=" line can tell.
-    names = {";": "t, min;c, mg/L", ",": "t; min,c; mg/L", "\t": "t, min\tc; mg/L"}
+    names = {";": "t [min];c, mg/L", ",": "t [min],c; mg/L", "\t": "t [min]\tc, mg/L; run 3"}
     text = _csv(names[separator], rows, separator)
     curve = read_rtd_csv(_write(tmp_path, f"sep={separator}\n" + text))
+    assert curve.time_unit == "min"
     expected = np.array(rows)
     np.testing.assert_allclose(curve.time, expected[:, 0])
     plain = read_rtd_csv(_write(tmp_path, _csv(None, rows, separator), "plain.csv"))
     np.testing.assert_array_equal(curve.value, plain.value)
+
+
+@pytest.mark.parametrize("header", ["time in min,c", "minutes,c", "Time hours,c"])
+def test_a_time_unit_in_words_the_header_grammar_does_not_read_is_an_error(tmp_path, header):
+    # Taken for seconds, such a curve's tau would be 60 or 3600 times too small.
+    rows = _gaussian_rows(np.linspace(0, 30, 31))
+    with pytest.raises(DataError, match=r"curve.csv, row 1: the time column .* names its unit"):
+        read_rtd_csv(_write(tmp_path, _csv(header, rows)))
 
 
 def test_value_column_is_chosen_by_name_among_extra_columns(tmp_path):
