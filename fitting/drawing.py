@@ -96,7 +96,6 @@ def _place_legend(figure, axes, spec: FigureSpec) -> None:
     the room made for it: a box fixed in a corner hid points of curves whose peak is late or
     whose tail is cut.
     """
-    import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     legend = axes.legend(fontsize=8, loc="best", title=spec["annotation"] or None,
@@ -105,16 +104,14 @@ def _place_legend(figure, axes, spec: FigureSpec) -> None:
     renderer = FigureCanvasAgg(figure).get_renderer()
     legend.draw(renderer)  # places the box (drawn again with the figure)
     box = legend.get_window_extent(renderer).padded(2.0)
-    drawn = [(spec["time"], spec["observed"]), (spec["fine"], spec["curve"])]
-    if spec["grid_curve"] is not None:
-        drawn.append((spec["fine"], spec["grid_curve"]))
-    points = np.concatenate([np.column_stack([np.asarray(x, float), np.asarray(y, float)])
-                             for x, y in drawn])
-    points = points[np.isfinite(points).all(axis=1)]
-    shown = axes.transData.transform(points)
-    inside = ((shown[:, 0] >= box.x0) & (shown[:, 0] <= box.x1)
-              & (shown[:, 1] >= box.y0) & (shown[:, 1] <= box.y1))
-    if not inside.any():
+    # The points and curves drawn, in display coordinates (NaN compares false: never inside).
+    hidden = False
+    for line in axes.get_lines():
+        shown = axes.transData.transform(line.get_xydata())
+        inside = ((shown[:, 0] >= box.x0) & (shown[:, 0] <= box.x1)
+                  & (shown[:, 1] >= box.y0) & (shown[:, 1] <= box.y1))
+        hidden = hidden or bool(inside.any())
+    if not hidden:
         return
     panel = axes.get_window_extent(renderer)
     share = min(box.height / panel.height + 0.03, 0.6)  # of the panel, above the data

@@ -232,6 +232,10 @@ def _describe(window, time_unit: str, amount: str) -> str:
     return text
 
 
+#: The widest scan spacing accepted, as a share of the RTD's spread (standard deviation).
+_FINEST_SHARE = 0.25
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``axialmix divert`` with parsed `args`; returns the exit status."""
     from axialmix import _exits
@@ -302,6 +306,17 @@ def run(args: argparse.Namespace) -> int:
     begin = min(0.0, first)
     if not until > begin:
         return _exits.error_line(_COMMAND, f"--until {until:g} must be after {begin:g}")
+    # The outlet's narrowest excursion is about as wide as the RTD's spread (a pulse comes
+    # out that wide): a scan spaced wider than a quarter of it can step over an excursion and
+    # say "no diversion" (an --until of hours for a blender of a minute), so it is refused.
+    spacing = (until - begin) / (args.points - 1)
+    if spacing > _FINEST_SHARE * spread:
+        needed = math.ceil((until - begin) / (_FINEST_SHARE * spread)) + 1
+        return _exits.error_line(
+            _COMMAND, f"--points {args.points}: the scan from {begin:g} to {until:g} "
+            f"{time_unit} is spaced by {spacing:.3g} {time_unit}, more than a quarter of the "
+            f"RTD's spread ({spread:.3g} {time_unit}): an excursion could pass between its "
+            f"points; use --points {needed} or a shorter --until")
     times = np.linspace(begin, until, args.points)
     flow = 1.0 if args.flow is None else args.flow * seconds / _HOUR  # kg per time unit
     amount_unit = "kg" if args.flow is not None else ""
